@@ -1,0 +1,128 @@
+"""``apcc-graph bench calibration``: APCC sweep fit vs the paper's one-pose method vs PCC.
+
+A synthetic sweep of a rod whose curvature grows along the arc
+(:func:`apcc_graph.planar_curves.growing_curvature_tip`), measured with Gaussian noise on the tip
+position and angle. Each model is fitted to the noisy poses and its tip is compared with the true
+(noise-free) tip at every pose: RMS position error (metres) and RMS tip-angle error (radians).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from apcc_graph.calibration import calibrate_from_tip, fit_segment, fit_thetas
+from apcc_graph.kinematics import apcc_in_plane, pcc_in_plane
+from apcc_graph.planar_curves import growing_curvature_tip
+
+
+@dataclass(frozen=True)
+class ModelError:
+    """One model's error against the true tips of the sweep."""
+
+    model: str
+    rms_position: float  # metres
+    rms_angle: float  # radians
+    k: float
+    delta_max: float  # radians
+
+
+@dataclass(frozen=True)
+class CalibrationBenchmark:
+    """Result of :func:`run_calibration_benchmark`."""
+
+    length: float
+    growth: float
+    n_poses: int
+    theta_max: float
+    noise_position: float
+    noise_angle: float
+    rows: tuple[ModelError, ...]
+
+    def row(self, model: str) -> ModelError:
+        """The row of a model by name."""
+        return next(r for r in self.rows if r.model == model)
+
+
+def run_calibration_benchmark(
+    length: float = 0.5,
+    growth: float = 2.0,
+    n_poses: int = 41,
+    theta_max: float = math.radians(80.0),
+    noise_position: float = 0.0005,
+    noise_angle: float = math.radians(0.5),
+    seed: int = 0,
+) -> CalibrationBenchmark:
+    """Fit APCC (sweep and one-pose) and PCC to a noisy growing-curvature sweep; score vs truth.
+
+    Args:
+        length: rod length (metres).
+        growth: curvature growth g from base to tip (curvature at the tip is ``1 + g`` times that
+            at the base).
+        n_poses: poses evenly spread over ``[-theta_max, theta_max]``.
+        theta_max: largest bend (radians).
+        noise_position: standard deviation of the measured tip position, per axis (metres).
+        noise_angle: standard deviation of the measured tip angle (radians).
+        seed: random seed of the noise.
+    """
+    rng = np.random.default_rng(seed)
+    thetas = np.linspace(-theta_max, theta_max, n_poses)
+    x, z, angle = growing_curvature_tip(thetas, length, growth)
+    truth = np.column_stack([x, z])
+    measured = truth + rng.normal(0.0, noise_position, truth.shape)
+    measured_angle = angle + rng.normal(0.0, noise_angle, angle.shape)
+
+    def score(
+        name: str, tips: np.ndarray, angles: np.ndarray, k: float, delta_max: float
+    ) -> ModelError:
+        return ModelError(
+            model=name,
+            rms_position=float(np.sqrt(np.mean(np.sum((tips - truth) ** 2, axis=1)))),
+            rms_angle=float(np.sqrt(np.mean((angles - angle) ** 2))),
+            k=k,
+            delta_max=delta_max,
+        )
+
+    rows = []
+    sweep = fit_segment(measured, measured_angle, length)
+    seg = sweep.segment
+    planar = apcc_in_plane(sweep.thetas, seg)
+    rows.append(
+        score(
+            "APCC, fit_segment (sweep)",
+            np.column_stack([planar.px, planar.pz]),
+            seg.tip_angle(sweep.thetas),
+            seg.k,
+            seg.delta_max,
+        )
+    )
+
+    top = int(np.argmax(thetas))
+    one = calibrate_from_tip(measured[top], float(measured_angle[top]), length).segment
+    fit_one = fit_thetas(one, measured, measured_angle)
+    planar = apcc_in_plane(fit_one.thetas, one)
+    rows.append(
+        score(
+            "APCC, calibrate_from_tip (paper, one pose)",
+            np.column_stack([planar.px, planar.pz]),
+            one.tip_angle(fit_one.thetas),
+            one.k,
+            one.delta_max,
+        )
+    )
+
+    px, pz = pcc_in_plane(sweep.pcc.thetas, length)
+    rows.append(
+        score("PCC (best fit)", np.column_stack([px, pz]), sweep.pcc.thetas, math.nan, math.nan)
+    )
+    return CalibrationBenchmark(
+        length=length,
+        growth=growth,
+        n_poses=n_poses,
+        theta_max=theta_max,
+        noise_position=noise_position,
+        noise_angle=noise_angle,
+        rows=tuple(rows),
+    )

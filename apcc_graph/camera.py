@@ -1,0 +1,194 @@
+"""The tip camera: pinhole intrinsics, OpenCV distortion, and its mounting on the segment tip.
+
+Conventions: pixels are ``(u, v)`` with the origin at the top-left pixel corner as in OpenCV;
+the camera frame has +z along the optical axis, +x to the right of the image, +y down.
+``tip_T_cam`` maps points in the camera frame to the tip frame (NOTES.md section 1); a camera
+looking straight along the backbone has ``tip_T_cam = identity``. Distortion coefficients are in
+OpenCV order ``k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tx, ty]]]]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from apcc_graph.segment import require_finite
+
+FloatArray = NDArray[np.float64]
+
+OPENCV_DISTORTION_SIZES = (0, 4, 5, 8, 12, 14)
+"""Numbers of distortion coefficients that OpenCV accepts."""
+
+
+def validate_pose(name: str, matrix: ArrayLike, tolerance: float = 1e-6) -> FloatArray:
+    """Check that ``matrix`` is a 4x4 rigid transform and return it as a read-only float array.
+
+    Args:
+        name: the field name for the message.
+        matrix: the candidate transform.
+        tolerance: allowed deviation of ``R^T R`` from identity and of ``det R`` from 1.
+
+    Raises:
+        ValueError: wrong shape, non-finite values, a bottom row other than ``[0, 0, 0, 1]`` or a
+            rotation block that is not orthonormal with determinant +1.
+    """
+    m = np.array(matrix, dtype=float)
+    if m.shape != (4, 4):
+        raise ValueError(f"{name}: expected a 4x4 homogeneous transform, got shape {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise ValueError(f"{name}: expected finite values, got {m.tolist()}")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=tolerance):
+        raise ValueError(f"{name}: bottom row must be [0, 0, 0, 1], got {m[3].tolist()}")
+    rot = m[:3, :3]
+    if (
+        np.max(np.abs(rot.T @ rot - np.eye(3))) > tolerance
+        or abs(np.linalg.det(rot) - 1.0) > tolerance
+    ):
+        raise ValueError(f"{name}: the 3x3 block must be a rotation (orthonormal, det +1)")
+    m[3] = [0.0, 0.0, 0.0, 1.0]
+    m.setflags(write=False)
+    return m
+
+
+@dataclass(frozen=True, eq=False)
+class TipCamera:
+    """A pinhole camera with OpenCV distortion, rigidly mounted on a segment tip.
+
+    Args:
+        fx, fy: focal lengths in pixels, > 0.
+        cx, cy: principal point in pixels.
+        width, height: image size in pixels, positive integers.
+        distortion: OpenCV distortion coefficients (0, 4, 5, 8, 12 or 14 of them).
+        tip_T_cam: 4x4 pose of the camera in the tip frame (default identity: looking along the
+            backbone).
+
+    Raises:
+        ValueError: a field is not finite, out of range or of the wrong size; the message names it.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    distortion: tuple[float, ...] = ()
+    tip_T_cam: FloatArray = field(default_factory=lambda: np.eye(4))
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy"):
+            value = require_finite("TipCamera", name, getattr(self, name))
+            if name in ("fx", "fy") and value <= 0.0:
+                raise ValueError(
+                    f"TipCamera.{name} = {value!r}: expected a focal length > 0 (pixels)"
+                )
+            object.__setattr__(self, name, value)
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value <= 0:
+                raise ValueError(
+                    f"TipCamera.{name} = {value!r}: expected a positive integer (pixels)"
+                )
+            object.__setattr__(self, name, int(value))
+        dist = tuple(
+            require_finite("TipCamera", f"distortion[{i}]", d)
+            for i, d in enumerate(self.distortion)
+        )
+        if len(dist) not in OPENCV_DISTORTION_SIZES:
+            raise ValueError(
+                f"TipCamera.distortion has {len(dist)} coefficients: expected one of "
+                f"{OPENCV_DISTORTION_SIZES} (OpenCV order k1, k2, p1, p2[, k3, ...])"
+            )
+        object.__setattr__(self, "distortion", dist)
+        object.__setattr__(self, "tip_T_cam", validate_pose("TipCamera.tip_T_cam", self.tip_T_cam))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, TipCamera):
+            return NotImplemented
+        return (self.fx, self.fy, self.cx, self.cy, self.width, self.height, self.distortion) == (
+            other.fx,
+            other.fy,
+            other.cx,
+            other.cy,
+            other.width,
+            other.height,
+            other.distortion,
+        ) and bool(np.array_equal(self.tip_T_cam, other.tip_T_cam))
+
+    def __hash__(self) -> int:
+        return hash(
+            (
+                self.fx,
+                self.fy,
+                self.cx,
+                self.cy,
+                self.width,
+                self.height,
+                self.distortion,
+                self.tip_T_cam.tobytes(),
+            )
+        )
+
+    @property
+    def intrinsic_matrix(self) -> FloatArray:
+        """The 3x3 OpenCV camera matrix ``K``."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def distortion_coefficients(self) -> FloatArray:
+        """Distortion coefficients as the float array OpenCV expects (possibly empty)."""
+        return np.asarray(self.distortion, dtype=float)
+
+    def project(self, points_cam: ArrayLike) -> FloatArray:
+        """Project points given in the camera frame (metres) to pixels, with distortion.
+
+        Args:
+            points_cam: ``(N, 3)`` points in the camera frame; they should have ``z > 0``.
+
+        Returns:
+            ``(N, 2)`` pixel coordinates ``(u, v)``.
+        """
+        pts = np.asarray(points_cam, dtype=float).reshape(-1, 3)
+        if len(pts) == 0:
+            return np.zeros((0, 2))
+        if not self.distortion:
+            uvw = pts @ self.intrinsic_matrix.T
+            return uvw[:, :2] / uvw[:, 2:3]
+        uv, _ = cv2.projectPoints(
+            pts, np.zeros(3), np.zeros(3), self.intrinsic_matrix, self.distortion_coefficients
+        )
+        return uv.reshape(-1, 2)
+
+    def bearings(self, pixels: ArrayLike) -> FloatArray:
+        """Unit bearing vectors in the camera frame for pixels, undistorted by OpenCV.
+
+        Args:
+            pixels: ``(N, 2)`` pixel coordinates ``(u, v)``.
+
+        Returns:
+            ``(N, 3)`` unit vectors, ``z > 0``.
+        """
+        uv = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        if len(uv) == 0:
+            return np.zeros((0, 3))
+        if self.distortion:
+            xy = cv2.undistortPoints(
+                uv.reshape(-1, 1, 2), self.intrinsic_matrix, self.distortion_coefficients
+            ).reshape(-1, 2)
+        else:
+            xy = np.column_stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy])
+        rays = np.column_stack([xy, np.ones(len(xy))])
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+    def in_image(self, pixels: ArrayLike) -> NDArray[np.bool_]:
+        """Mask of pixels inside the image, ``0 <= u < width`` and ``0 <= v < height``."""
+        uv = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        return (
+            (uv[:, 0] >= 0.0)
+            & (uv[:, 0] < self.width)
+            & (uv[:, 1] >= 0.0)
+            & (uv[:, 1] < self.height)
+        )

@@ -1,0 +1,249 @@
+"""The ``apcc-graph`` command line.
+
+Layered as in STYLE.md 8: :func:`build_parser` describes the commands, each ``_run_*`` turns parsed
+arguments into a call of a pure library function that returns a result object, and a ``_format_*``
+function turns that result into text. User mistakes (a missing or malformed file, a bad value) end
+in one line on stderr and exit code 1; ``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable, Sequence
+
+from apcc_graph import __version__
+
+_EXAMPLES = {
+    "calibrate": "example:\n  apcc-graph calibrate data/calibration/paper_example.toml",
+    "bench kinematics": "example:\n  apcc-graph bench kinematics --frames 1000000",
+    "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
+}
+
+
+class UserError(Exception):
+    """A mistake in what the user asked for; printed as one line, exit code 1."""
+
+
+def _deg(radians: float) -> str:
+    return "-" if math.isnan(radians) else f"{math.degrees(radians):.3f} deg"
+
+
+# ----------------------------------------------------------------------------------- calibrate
+def _run_calibrate(args: argparse.Namespace) -> str:
+    from apcc_graph.calibration_file import calibrate_measurements, load_tip_measurements
+
+    report = calibrate_measurements(load_tip_measurements(args.file))
+    if args.output is not None:
+        from apcc_graph.robot import Robot, save_robot
+
+        save_robot(Robot([report.segment]), args.output)
+    return _format_calibration(report, args.file, args.output)
+
+
+def _format_calibration(report: object, path: str, output: str | None) -> str:
+    from apcc_graph.calibration_file import CalibrationReport
+
+    assert isinstance(report, CalibrationReport)
+    seg = report.segment
+    method = (
+        "one pose, closed form (paper III.C)"
+        if report.method == "one-pose"
+        else "least squares over the sweep"
+    )
+
+    def pm(value: str, std: float, unit: Callable[[float], str]) -> str:
+        return value if math.isnan(std) else f"{value} +/- {unit(std)}"
+
+    lines = [
+        f"calibration of {path}: {report.n_poses} pose(s), {method}",
+        f"  length     = {seg.length:.4f} m",
+        f"  k          = {pm(f'{seg.k:.4f}', report.k_std, lambda s: f'{s:.4f}')}",
+        f"  delta_max  = {pm(_deg(seg.delta_max), report.delta_max_std, _deg)}",
+        f"  theta_max  = {_deg(seg.theta_max)}",
+        f"  link lengths l1 = (1-k) L = {seg.l1:.4f} m, l2 = k L = {seg.l2:.4f} m",
+        "residuals on the measured poses (RMS):",
+        f"  {'model':<6} {'tip position':>14} {'tip angle':>14}",
+        f"  {'APCC':<6} {report.apcc.rms_position * 1e3:>11.4f} mm "
+        f"{math.degrees(report.apcc.rms_angle):>10.4f} deg",
+        f"  {'PCC':<6} {report.pcc.rms_position * 1e3:>11.4f} mm "
+        f"{math.degrees(report.pcc.rms_angle):>10.4f} deg",
+        "robot.toml entry:",
+        *("  " + line for line in _segment_toml(seg).splitlines()),
+    ]
+    if output is not None:
+        lines.append(f"wrote {output}")
+    return "\n".join(lines)
+
+
+def _segment_toml(segment: object) -> str:
+    """The ``[[segments]]`` table of ``segment`` exactly as ``save_robot`` writes its values."""
+    from apcc_graph.robot import Robot
+    from apcc_graph.robot_file import robot_to_toml
+
+    entry = robot_to_toml(Robot([segment]))["segments"][0]
+    return "\n".join(["[[segments]]"] + [f"{key} = {value!r}" for key, value in entry.items()])
+
+
+# --------------------------------------------------------------------------------------- bench
+def _run_bench_kinematics(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.kinematics import run_kinematics_benchmark
+    from apcc_graph.robot import load_robot
+
+    if args.frames < 1 or args.repeats < 1:
+        raise UserError("--frames and --repeats must be at least 1")
+    robot = load_robot(args.robot)
+    result = run_kinematics_benchmark(
+        robot, n_frames=args.frames, repeats=args.repeats, seed=args.seed
+    )
+    lines = [
+        f"forward kinematics, {result.n_segments}-segment robot ({args.robot}), "
+        f"best of {args.repeats}:",
+        f"  {'method':<34} {'frames':>9} {'wall time':>11} {'per frame':>11} {'ratio':>8}",
+    ]
+    for row in result.rows:
+        lines.append(
+            f"  {row.method:<34} {row.frames:>9} {row.seconds:>9.3f} s "
+            f"{row.per_frame_ns:>8.0f} ns {result.ratio(row):>7.1f}x"
+        )
+    lines.append(f"  largest |difference| to the peers: {result.max_abs_difference:.2e}")
+    ref = result.reference
+    target = "met" if ref.seconds < 1.0 else "NOT met"
+    if ref.frames == 1_000_000:
+        lines.append(f"target: 10^6 frames under 1 s -> {ref.seconds:.3f} s ({target})")
+    else:
+        lines.append("target (10^6 frames under 1 s): run with --frames 1000000")
+    return "\n".join(lines)
+
+
+def _run_bench_calibration(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.calibration import run_calibration_benchmark
+
+    if args.poses < 2:
+        raise UserError("--poses must be at least 2")
+    if not 0.0 < args.theta_max_deg <= 180.0:
+        raise UserError("--theta-max-deg must be in (0, 180]")
+    if args.growth <= -1.0:
+        raise UserError("--growth must be > -1")
+    result = run_calibration_benchmark(
+        length=args.length,
+        growth=args.growth,
+        n_poses=args.poses,
+        theta_max=math.radians(args.theta_max_deg),
+        noise_position=args.noise_mm * 1e-3,
+        noise_angle=math.radians(args.noise_deg),
+        seed=args.seed,
+    )
+    lines = [
+        f"calibration on a rod of {result.length} m whose curvature grows {1 + result.growth:g}x "
+        f"from base to tip;",
+        f"{result.n_poses} poses in +/-{math.degrees(result.theta_max):g} deg, noise "
+        f"{result.noise_position * 1e3:g} mm and {math.degrees(result.noise_angle):g} deg "
+        f"(seed {args.seed}); errors against the true tips:",
+        f"  {'model':<44} {'RMS tip pos':>12} {'RMS tip angle':>14} {'k':>7} {'delta_max':>10}",
+    ]
+    for row in result.rows:
+        k = "-" if math.isnan(row.k) else f"{row.k:.4f}"
+        lines.append(
+            f"  {row.model:<44} {row.rms_position * 1e3:>9.3f} mm "
+            f"{math.degrees(row.rms_angle):>10.3f} deg {k:>7} {_deg(row.delta_max):>10}"
+        )
+    sweep, pcc = result.rows[0], result.row("PCC (best fit)")
+    lines.append(f"PCC / APCC sweep tip error ratio: {pcc.rms_position / sweep.rms_position:.1f}x")
+    return "\n".join(lines)
+
+
+# -------------------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``apcc-graph`` (subcommands and their options)."""
+    parser = argparse.ArgumentParser(
+        prog="apcc-graph",
+        description="Continuum-robot shape from tip cameras (APCC 2L-5R).",
+    )
+    parser.add_argument("--version", action="version", version=f"apcc-graph {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    fmt = argparse.RawDescriptionHelpFormatter
+    cal = sub.add_parser(
+        "calibrate",
+        help="calibrate k and delta_max of a segment from measured tip poses",
+        description="Calibrate one segment from a TOML file of measured tip poses "
+        "(format apcc-graph/calibration@1): one pose by the paper's closed form, several by "
+        "least squares. Prints the model and the APCC-vs-PCC residuals.",
+        epilog=_EXAMPLES["calibrate"],
+        formatter_class=fmt,
+    )
+    cal.add_argument("file", help="calibration TOML file")
+    cal.add_argument(
+        "--output",
+        metavar="ROBOT.toml",
+        help="also write a one-segment robot.toml with the calibrated segment",
+    )
+    cal.set_defaults(run=_run_calibrate)
+
+    bench = sub.add_parser("bench", help="benchmarks against named peers (figures, not tests)")
+    bench_sub = bench.add_subparsers(dest="bench", metavar="BENCHMARK", required=True)
+    kin = bench_sub.add_parser(
+        "kinematics",
+        help="vectorised forward kinematics vs a matmul chain and a gtsam loop",
+        description="Time Robot.forward over many frames, and its peers on the same angles.",
+        epilog=_EXAMPLES["bench kinematics"],
+        formatter_class=fmt,
+    )
+    kin.add_argument(
+        "--robot",
+        default="data/robots/planar_three.toml",
+        help="robot.toml (default: the repository's three-segment planar robot)",
+    )
+    kin.add_argument("--frames", type=int, default=1_000_000, help="frames (default 10^6)")
+    kin.add_argument("--repeats", type=int, default=3, help="timing repeats, best kept")
+    kin.add_argument("--seed", type=int, default=0)
+    kin.set_defaults(run=_run_bench_kinematics)
+
+    calb = bench_sub.add_parser(
+        "calibration",
+        help="sweep fit vs one-pose calibration vs PCC on a varying-curvature rod",
+        description="Fit APCC (sweep and one pose) and PCC to a noisy synthetic sweep of a rod "
+        "whose curvature grows along the arc, and compare each with the true tips.",
+        epilog=_EXAMPLES["bench calibration"],
+        formatter_class=fmt,
+    )
+    calb.add_argument("--length", type=float, default=0.5, help="rod length, metres")
+    calb.add_argument(
+        "--growth",
+        type=float,
+        default=2.0,
+        help="curvature growth g: tip curvature is 1+g times the base's",
+    )
+    calb.add_argument("--poses", type=int, default=41)
+    calb.add_argument("--theta-max-deg", type=float, default=80.0)
+    calb.add_argument("--noise-mm", type=float, default=0.5)
+    calb.add_argument("--noise-deg", type=float, default=0.5)
+    calb.add_argument("--seed", type=int, default=0)
+    calb.set_defaults(run=_run_bench_calibration)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``apcc-graph``; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        print(args.run(args))
+    except (UserError, ValueError, OSError) as exc:
+        if args.debug:
+            raise
+        message = (
+            str(exc)
+            if not isinstance(exc, OSError) or not exc.filename
+            else (f"{exc.filename}: {exc.strerror}")
+        )
+        print(f"apcc-graph: error: {message}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,165 @@
+"""The ``robot.toml`` file (format ``apcc-graph/robot@1``, DESIGN.md "Files").
+
+Angles are degrees in the file (keys ending in ``_deg``) and radians in memory. The camera mounting
+``tip_T_cam`` is a translation in metres and a unit quaternion ``(w, x, y, z)``. Every error names
+the file and the key (``segments[i].camera.fx``; indices are 0-based as in the TOML array).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gtsam
+import numpy as np
+import tomli_w
+
+from apcc_graph.atomic_write import atomic_write_bytes
+from apcc_graph.camera import TipCamera
+from apcc_graph.robot import Robot
+from apcc_graph.segment import Segment
+from apcc_graph.toml_fields import TomlTable, read_toml
+
+ROBOT_FORMAT = "apcc-graph/robot@1"
+
+_SEGMENT_KEYS = {
+    "length": "length",
+    "k": "k",
+    "delta_max": "delta_max_deg",
+    "theta_max": "theta_max_deg",
+}
+_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "tip_T_cam")
+
+
+def _segment_from(table: TomlTable) -> Segment:
+    table.check_keys(list(_SEGMENT_KEYS.values()) + ["camera"], required=_SEGMENT_KEYS.values())
+    values = {
+        "length": table.number("length"),
+        "k": table.number("k"),
+        "delta_max": math.radians(table.number("delta_max_deg")),
+        "theta_max": math.radians(table.number("theta_max_deg")),
+    }
+    try:
+        return Segment(**values)
+    except ValueError as exc:
+        for field, key in _SEGMENT_KEYS.items():
+            if str(exc).startswith(f"Segment.{field} "):
+                shown = table.data[key]
+                raise table.error(key, f"{exc} (the file gives {key} = {shown!r})") from None
+        raise table.error("", str(exc)) from None
+
+
+def _pose_from(table: TomlTable) -> np.ndarray:
+    table.check_keys(("translation", "quaternion_wxyz"))
+    translation = table.numbers("translation", 3, default=[0.0, 0.0, 0.0])
+    quat = table.numbers("quaternion_wxyz", 4, default=[1.0, 0.0, 0.0, 0.0])
+    norm = math.sqrt(sum(q * q for q in quat))
+    if abs(norm - 1.0) > 1e-6:
+        raise table.error(
+            "quaternion_wxyz", f"expected a unit quaternion (w, x, y, z), got norm {norm:.9g}"
+        )
+    w, x, y, z = (q / norm for q in quat)
+    pose = np.eye(4)
+    pose[:3, :3] = gtsam.Rot3.Quaternion(w, x, y, z).matrix()
+    pose[:3, 3] = translation
+    return pose
+
+
+def _camera_from(table: TomlTable) -> TipCamera:
+    table.check_keys(_CAMERA_KEYS, required=("fx", "fy", "cx", "cy", "width", "height"))
+    tip_T_cam = _pose_from(table.table("tip_T_cam")) if table.has("tip_T_cam") else np.eye(4)
+    values: dict[str, Any] = {name: table.number(name) for name in ("fx", "fy", "cx", "cy")}
+    values.update(width=table.integer("width"), height=table.integer("height"))
+    values["distortion"] = tuple(table.numbers("distortion", default=[]))
+    try:
+        return TipCamera(**values, tip_T_cam=tip_T_cam)
+    except ValueError as exc:
+        message = str(exc)
+        for name in _CAMERA_KEYS:
+            if message.startswith(f"TipCamera.{name}"):
+                raise table.error(name, message) from None
+        raise table.error("", message) from None
+
+
+def robot_from_toml(data: dict[str, Any], path: str | Path = "<robot.toml>") -> Robot:
+    """Build a :class:`Robot` from parsed ``robot.toml`` data (``path`` is used in messages)."""
+    top = TomlTable(path, "", data)
+    top.check_keys(("format", "segments"), required=("format", "segments"))
+    top.check_format(ROBOT_FORMAT)
+    segments, cameras = [], []
+    for table in top.tables("segments"):
+        segments.append(_segment_from(table))
+        cameras.append(_camera_from(table.table("camera")) if table.has("camera") else None)
+    return Robot(segments, cameras)
+
+
+def load_robot(path: str | Path) -> Robot:
+    """Read ``robot.toml``.
+
+    Args:
+        path: the file.
+
+    Returns:
+        The robot, angles in radians.
+
+    Raises:
+        ValueError: missing file, bad TOML, wrong format version, unknown or missing keys, bad
+            values; the message names the file and the key.
+    """
+    return robot_from_toml(read_toml(path), path)
+
+
+def _degrees(radians: float) -> float:
+    """Degrees for the file, rounded to 15 significant digits so that ``60.0`` stays ``60.0``.
+
+    15 digits survive decimal -> double -> decimal, so a file that is loaded and saved again is
+    unchanged, and the radians read back differ from the original by at most ~1e-15 relative.
+    """
+    return float(f"{math.degrees(radians):.15g}")
+
+
+def _pose_to(pose: np.ndarray) -> dict[str, list[float]]:
+    q = gtsam.Rot3(pose[:3, :3]).toQuaternion()
+    quat = [q.w(), q.x(), q.y(), q.z()]
+    if quat[0] < 0.0:  # q and -q are the same rotation; write the one with w >= 0
+        quat = [-v for v in quat]
+    return {
+        "translation": [float(v) for v in pose[:3, 3]],
+        "quaternion_wxyz": [float(v) for v in quat],
+    }
+
+
+def robot_to_toml(robot: Robot) -> dict[str, Any]:
+    """The ``robot.toml`` document of ``robot`` as a dict (degrees for angles)."""
+    segments = []
+    for seg, cam in zip(robot.segments, robot.cameras, strict=True):
+        entry: dict[str, Any] = {
+            "length": seg.length,
+            "k": seg.k,
+            "delta_max_deg": _degrees(seg.delta_max),
+            "theta_max_deg": _degrees(seg.theta_max),
+        }
+        if cam is not None:
+            entry["camera"] = {
+                "fx": cam.fx,
+                "fy": cam.fy,
+                "cx": cam.cx,
+                "cy": cam.cy,
+                "width": cam.width,
+                "height": cam.height,
+                "distortion": list(cam.distortion),
+                "tip_T_cam": _pose_to(cam.tip_T_cam),
+            }
+        segments.append(entry)
+    return {"format": ROBOT_FORMAT, "segments": segments}
+
+
+def save_robot(robot: Robot, path: str | Path) -> None:
+    """Write ``robot`` as ``robot.toml`` atomically (temporary file, then rename).
+
+    Args:
+        robot: the robot.
+        path: destination file; its folder is created if needed.
+    """
+    atomic_write_bytes(path, tomli_w.dumps(robot_to_toml(robot)).encode("utf-8"))
