@@ -27,6 +27,10 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        # Name the destination, not the temporary file.
+        raise OSError(exc.errno, f"cannot write: {exc.strerror or exc}", str(path)) from exc
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -167,21 +167,21 @@ def calibrate_from_tip(
     tip_angle = float(_finite("tip_angle", tip_angle, ()))
     length = _positive("length", length)
     reach = math.hypot(x, z)
-    if reach >= length:
-        raise ValueError(
-            f"tip_position ({x:g}, {z:g}) is {reach:g} m from the base, at or beyond the reach of "
-            f"a bent segment of length {length:g} m; check the units (metres) and the length"
-        )
     theta = 2.0 * math.atan2(x, z)
+    if reach > length:
+        raise ValueError(
+            f"tip_position ({x:g}, {z:g}) is {reach:g} m from the base, beyond the reach of a "
+            f"segment of length {length:g} m; check the units (metres) and the length"
+        )
     if abs(theta) > math.pi:
         raise ValueError(
             f"tip_position ({x:g}, {z:g}) implies a bend of {math.degrees(theta):.1f} deg; "
             "expected |theta| <= 180 deg with the base axis along +z"
         )
-    if abs(theta) < MIN_BEND:
+    if abs(theta) < MIN_BEND or reach == length:
         raise ValueError(
             f"the pose is bent only {math.degrees(theta):.3f} deg: k is not observable from a "
-            "nearly straight segment; photograph it bent to theta_max"
+            "straight or nearly straight segment; photograph it bent to theta_max"
         )
     k = (length**2 - reach**2) / (2.0 * length * (length - z))
     if not 0.0 < k < 0.5:

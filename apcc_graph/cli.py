@@ -126,6 +126,8 @@ def _run_bench_calibration(args: argparse.Namespace) -> str:
         raise UserError("--theta-max-deg must be in (0, 180]")
     if args.growth <= -1.0:
         raise UserError("--growth must be > -1")
+    if args.length <= 0.0 or args.noise_mm < 0.0 or args.noise_deg < 0.0:
+        raise UserError("--length must be > 0, --noise-mm and --noise-deg >= 0")
     result = run_calibration_benchmark(
         length=args.length,
         growth=args.growth,

@@ -59,11 +59,17 @@ def _pose_from(table: TomlTable) -> np.ndarray:
         raise table.error(
             "quaternion_wxyz", f"expected a unit quaternion (w, x, y, z), got norm {norm:.9g}"
         )
-    w, x, y, z = (q / norm for q in quat)
     pose = np.eye(4)
-    pose[:3, :3] = gtsam.Rot3.Quaternion(w, x, y, z).matrix()
+    pose[:3, :3] = _rotation_from_quaternion(quat)
     pose[:3, 3] = translation
     return pose
+
+
+def _rotation_from_quaternion(quat: list[float]) -> np.ndarray:
+    """The rotation matrix of a (nearly) unit quaternion ``(w, x, y, z)``, normalised first."""
+    norm = math.sqrt(sum(q * q for q in quat))
+    w, x, y, z = (q / norm for q in quat)
+    return gtsam.Rot3.Quaternion(w, x, y, z).matrix()
 
 
 def _camera_from(table: TomlTable) -> TipCamera:
@@ -119,15 +125,47 @@ def _degrees(radians: float) -> float:
     return float(f"{math.degrees(radians):.15g}")
 
 
+def _segment_degrees(segment: Segment) -> tuple[float, float]:
+    """``(delta_max_deg, theta_max_deg)`` for the file, still valid after rounding.
+
+    Rounding each to 15 digits could make ``|delta_max_deg| == theta_max_deg`` when the two
+    differ by less than 1e-15 relative; such a delta_max is moved 1e-12 (relative) inward.
+    """
+    delta, theta = _degrees(segment.delta_max), _degrees(segment.theta_max)
+    limit = float(f"{theta * (1.0 - 1e-12):.15g}")
+    if abs(delta) > limit:
+        delta = math.copysign(limit, delta)
+    return delta, theta
+
+
+_QUATERNION_DECIMALS = 15
+"""Quaternion components are written with 15 decimals."""
+
+
+def _quaternion_of(rotation: np.ndarray) -> list[float]:
+    q = gtsam.Rot3(rotation).toQuaternion()
+    quat = [round(v, _QUATERNION_DECIMALS) + 0.0 for v in (q.w(), q.x(), q.y(), q.z())]
+    # q and -q are the same rotation: write the one whose first non-zero component is positive.
+    if next((v for v in quat if v != 0.0), 1.0) < 0.0:
+        quat = [-v + 0.0 for v in quat]
+    return quat
+
+
 def _pose_to(pose: np.ndarray) -> dict[str, list[float]]:
-    q = gtsam.Rot3(pose[:3, :3]).toQuaternion()
-    quat = [q.w(), q.x(), q.y(), q.z()]
-    if quat[0] < 0.0:  # q and -q are the same rotation; write the one with w >= 0
-        quat = [-v for v in quat]
-    return {
-        "translation": [float(v) for v in pose[:3, 3]],
-        "quaternion_wxyz": [float(v) for v in quat],
-    }
+    """The file entry of a pose: translation and a quaternion that survives load -> save.
+
+    Loading normalises the written (rounded) quaternion, which moves it by ~1e-15, so a plain
+    rounding could change the last digit on every save. The quaternion written is instead a fixed
+    point of "load, then convert back and round" (reached in one or two steps), so a loaded file
+    saves to the same bytes.
+    """
+    quat = _quaternion_of(pose[:3, :3])
+    for _ in range(10):
+        again = _quaternion_of(_rotation_from_quaternion(quat))
+        if again == quat:
+            break
+        quat = again
+    return {"translation": [float(v) for v in pose[:3, 3]], "quaternion_wxyz": quat}
 
 
 def robot_to_toml(robot: Robot) -> dict[str, Any]:
@@ -137,8 +175,8 @@ def robot_to_toml(robot: Robot) -> dict[str, Any]:
         entry: dict[str, Any] = {
             "length": seg.length,
             "k": seg.k,
-            "delta_max_deg": _degrees(seg.delta_max),
-            "theta_max_deg": _degrees(seg.theta_max),
+            "delta_max_deg": _segment_degrees(seg)[0],
+            "theta_max_deg": _segment_degrees(seg)[1],
         }
         if cam is not None:
             entry["camera"] = {

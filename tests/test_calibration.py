@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -37,7 +38,8 @@ def test_paper_numbers() -> None:
 
 
 def test_shipped_paper_example_file() -> None:
-    report = calibrate_measurements(load_tip_measurements("data/calibration/paper_example.toml"))
+    report = calibrate_measurements(load_tip_measurements(
+        Path(__file__).resolve().parents[1] / "data/calibration/paper_example.toml"))
     assert report.method == "one-pose"
     assert report.segment.k == pytest.approx(11.1 / 49.6, abs=1e-9)
     assert math.degrees(report.segment.delta_max) == pytest.approx(8.0, abs=1e-9)

@@ -16,6 +16,7 @@ import numpy as np
 from apcc_graph.calibration import calibrate_from_tip, fit_segment, fit_thetas
 from apcc_graph.kinematics import apcc_in_plane, pcc_in_plane
 from apcc_graph.planar_curves import growing_curvature_tip
+from apcc_graph.segment import Segment
 
 
 @dataclass(frozen=True)
@@ -85,34 +86,17 @@ def run_calibration_benchmark(
             delta_max=delta_max,
         )
 
-    rows = []
-    sweep = fit_segment(measured, measured_angle, length)
-    seg = sweep.segment
-    planar = apcc_in_plane(sweep.thetas, seg)
-    rows.append(
-        score(
-            "APCC, fit_segment (sweep)",
-            np.column_stack([planar.px, planar.pz]),
-            seg.tip_angle(sweep.thetas),
-            seg.k,
-            seg.delta_max,
-        )
-    )
+    def score_apcc(name: str, seg: Segment, fitted: np.ndarray) -> ModelError:
+        planar = apcc_in_plane(fitted, seg)
+        return score(name, np.column_stack([planar.px, planar.pz]), seg.tip_angle(fitted),
+                     seg.k, seg.delta_max)
 
+    sweep = fit_segment(measured, measured_angle, length)
+    rows = [score_apcc("APCC, fit_segment (sweep)", sweep.segment, sweep.thetas)]
     top = int(np.argmax(thetas))
     one = calibrate_from_tip(measured[top], float(measured_angle[top]), length).segment
-    fit_one = fit_thetas(one, measured, measured_angle)
-    planar = apcc_in_plane(fit_one.thetas, one)
-    rows.append(
-        score(
-            "APCC, calibrate_from_tip (paper, one pose)",
-            np.column_stack([planar.px, planar.pz]),
-            one.tip_angle(fit_one.thetas),
-            one.k,
-            one.delta_max,
-        )
-    )
-
+    rows.append(score_apcc("APCC, calibrate_from_tip (paper, one pose)", one,
+                           fit_thetas(one, measured, measured_angle).thetas))
     px, pz = pcc_in_plane(sweep.pcc.thetas, length)
     rows.append(
         score("PCC (best fit)", np.column_stack([px, pz]), sweep.pcc.thetas, math.nan, math.nan)
