@@ -11,12 +11,15 @@ import math
 from pathlib import Path
 from typing import Any
 
-import gtsam
 import numpy as np
 import tomli_w
 
 from apcc_graph.atomic_write import atomic_write_bytes
 from apcc_graph.camera import TipCamera
+from apcc_graph.pose_io import (
+    quaternion_for_file,
+    rotation_from_quaternion,
+)
 from apcc_graph.robot import Robot
 from apcc_graph.segment import Segment
 from apcc_graph.toml_fields import TomlTable, read_toml
@@ -60,16 +63,9 @@ def _pose_from(table: TomlTable) -> np.ndarray:
             "quaternion_wxyz", f"expected a unit quaternion (w, x, y, z), got norm {norm:.9g}"
         )
     pose = np.eye(4)
-    pose[:3, :3] = _rotation_from_quaternion(quat)
+    pose[:3, :3] = rotation_from_quaternion(quat)
     pose[:3, 3] = translation
     return pose
-
-
-def _rotation_from_quaternion(quat: list[float]) -> np.ndarray:
-    """The rotation matrix of a (nearly) unit quaternion ``(w, x, y, z)``, normalised first."""
-    norm = math.sqrt(sum(q * q for q in quat))
-    w, x, y, z = (q / norm for q in quat)
-    return gtsam.Rot3.Quaternion(w, x, y, z).matrix()
 
 
 def _camera_from(table: TomlTable) -> TipCamera:
@@ -138,34 +134,9 @@ def _segment_degrees(segment: Segment) -> tuple[float, float]:
     return delta, theta
 
 
-_QUATERNION_DECIMALS = 15
-"""Quaternion components are written with 15 decimals."""
-
-
-def _quaternion_of(rotation: np.ndarray) -> list[float]:
-    q = gtsam.Rot3(rotation).toQuaternion()
-    quat = [round(v, _QUATERNION_DECIMALS) + 0.0 for v in (q.w(), q.x(), q.y(), q.z())]
-    # q and -q are the same rotation: write the one whose first non-zero component is positive.
-    if next((v for v in quat if v != 0.0), 1.0) < 0.0:
-        quat = [-v + 0.0 for v in quat]
-    return quat
-
-
 def _pose_to(pose: np.ndarray) -> dict[str, list[float]]:
-    """The file entry of a pose: translation and a quaternion that survives load -> save.
-
-    Loading normalises the written (rounded) quaternion, which moves it by ~1e-15, so a plain
-    rounding could change the last digit on every save. The quaternion written is instead a fixed
-    point of "load, then convert back and round" (reached in one or two steps), so a loaded file
-    saves to the same bytes.
-    """
-    quat = _quaternion_of(pose[:3, :3])
-    for _ in range(10):
-        again = _quaternion_of(_rotation_from_quaternion(quat))
-        if again == quat:
-            break
-        quat = again
-    return {"translation": [float(v) for v in pose[:3, 3]], "quaternion_wxyz": quat}
+    return {"translation": [float(v) for v in pose[:3, 3]],
+            "quaternion_wxyz": quaternion_for_file(pose[:3, :3])}
 
 
 def robot_to_toml(robot: Robot) -> dict[str, Any]:
