@@ -12,10 +12,15 @@ import argparse
 import math
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
 
 from apcc_graph import __version__
 
 _EXAMPLES = {
+    "simulate": "example:\n  apcc-graph simulate --robot data/robots/planar_three.toml "
+    "--frames 300 --out /tmp/seq --noise-px 1 --outliers 0.1 --seed 1",
     "calibrate": "example:\n  apcc-graph calibrate data/calibration/paper_example.toml",
     "bench kinematics": "example:\n  apcc-graph bench kinematics --frames 1000000",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
@@ -84,6 +89,35 @@ def _segment_toml(segment: object) -> str:
 
     entry = robot_to_toml(Robot([segment]))["segments"][0]
     return "\n".join(["[[segments]]"] + [f"{key} = {value!r}" for key, value in entry.items()])
+
+
+# ------------------------------------------------------------------------------------ simulate
+def _run_simulate(args: argparse.Namespace) -> str:
+    from apcc_graph.io import save_sequence
+    from apcc_graph.robot import load_robot
+    from apcc_graph.simulate import simulate
+
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
+        raise UserError(f"{out}: exists and is not empty; choose another --out or add --force")
+    robot = load_robot(args.robot)
+    sim = simulate(
+        robot, args.frames, noise_px=args.noise_px, outlier_fraction=args.outliers,
+        seed=args.seed, fps=args.fps, motion=args.motion, spatial=args.spatial,
+        moving_base=args.moving_base, scene=args.scene, n_points=args.points,
+        track_lifetime=args.lifetime, blackout_fraction=args.blackout, decimals=args.decimals,
+        progress=True,
+    )
+    save_sequence(sim.sequence, out)
+    seq = sim.sequence
+    lines = [f"wrote {out}: {seq.n_frames} frames at {args.fps:g} fps, "
+             f"{len(seq.cameras)} camera(s), seed {args.seed}"]
+    for cam in seq.cameras:
+        per_frame = np.bincount(seq.tracks[cam].frames, minlength=seq.n_frames)
+        lines.append(f"  cam_{cam + 1}: {len(seq.tracks[cam])} observations, "
+                     f"{per_frame.mean():.0f} tracks per frame (min {per_frame.min()}), "
+                     f"{int(sim.outliers[cam].sum())} outliers")
+    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------------------- bench
@@ -185,6 +219,37 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.set_defaults(run=_run_calibrate)
 
+    simp = sub.add_parser(
+        "simulate", help="simulate a sequence of tip-camera tracks with ground truth",
+        description="Simulate what the tip cameras of a robot see along a random motion and "
+        "write the sequence folder (robot.toml, frames.csv with ground truth, tracks/).",
+        epilog=_EXAMPLES["simulate"], formatter_class=fmt,
+    )
+    simp.add_argument("--robot", required=True, help="robot.toml")
+    simp.add_argument("--frames", type=_at_least(2), required=True, help="number of frames")
+    simp.add_argument("--out", required=True, help="output sequence folder")
+    simp.add_argument("--noise-px", type=_non_negative, default=0.5,
+                      help="pixel noise std (default 0.5)")
+    simp.add_argument("--outliers", type=_fraction, default=0.0,
+                      help="fraction of wrong associations, 0 <= p < 1 (default 0)")
+    simp.add_argument("--seed", type=int, default=0)
+    simp.add_argument("--fps", type=_positive, default=30.0)
+    simp.add_argument("--motion", choices=("smooth", "paper"), default="smooth",
+                      help="smooth random motion, or the paper's random steps under 5 deg")
+    simp.add_argument("--spatial", action="store_true", help="also vary the bending planes psi")
+    simp.add_argument("--moving-base", action="store_true",
+                      help="move the base (rotation up to 5 deg, translation up to 0.1 m)")
+    simp.add_argument("--scene", choices=("points", "room"), default="points")
+    simp.add_argument("--points", type=_at_least(1), default=2700, help="scene points")
+    simp.add_argument("--lifetime", type=_positive, default=None,
+                      help="mean track length in frames (default: while in view)")
+    simp.add_argument("--blackout", type=_fraction, default=0.0,
+                      help="fraction of frames in which a camera sees nothing")
+    simp.add_argument("--decimals", type=int, default=None,
+                      help="round pixels to this many decimals (default: full precision)")
+    simp.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    simp.set_defaults(run=_run_simulate)
+
     bench = sub.add_parser("bench", help="benchmarks against named peers (figures, not tests)")
     bench_sub = bench.add_subparsers(dest="bench", metavar="BENCHMARK", required=True)
     kin = bench_sub.add_parser(
@@ -226,6 +291,29 @@ def build_parser() -> argparse.ArgumentParser:
     calb.add_argument("--seed", type=int, default=0)
     calb.set_defaults(run=_run_bench_calibration)
     return parser
+
+
+def _number_type(check: Callable[[float], bool], what: str,
+                 cast: Callable[[str], float] = float) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) and check(value)):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {what}")
+        return value
+
+    return parse
+
+
+_positive = _number_type(lambda v: v > 0, "a number > 0")
+_non_negative = _number_type(lambda v: v >= 0, "a number >= 0")
+_fraction = _number_type(lambda v: 0 <= v < 1, "a fraction 0 <= p < 1")
+
+
+def _at_least(minimum: int) -> Callable[[str], float]:
+    return _number_type(lambda v: v >= minimum, f"an integer >= {minimum}", int)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from apcc_graph.kinematics import plane_to_transform
+
 FloatArray = NDArray[np.float64]
 
 
@@ -44,3 +46,15 @@ def growing_curvature_tip(
     angle = theta[..., None] / (1.0 + 0.5 * growth) * (u + 0.5 * growth * u * u)
     w = 0.5 * length * weights
     return np.sin(angle) @ w, np.cos(angle) @ w, theta.copy()
+
+
+def growing_curvature_transform(
+    theta: ArrayLike, length: float, growth: float, psi: ArrayLike = 0.0
+) -> FloatArray:
+    """``base_T_tip`` of a rod with linearly growing curvature, ``(..., 4, 4)``.
+
+    The tip tangent is at ``theta`` (no separate deviation: the shape itself departs from an
+    arc); ``psi`` turns the bending plane about the base z axis as for the APCC model.
+    """
+    x, z, angle = growing_curvature_tip(theta, length, growth)
+    return plane_to_transform(angle, x, z, psi)
