@@ -23,6 +23,7 @@ _EXAMPLES = {
     "--frames 300 --out /tmp/seq --noise-px 1 --outliers 0.1 --seed 1",
     "calibrate": "example:\n  apcc-graph calibrate data/calibration/paper_example.toml",
     "bench kinematics": "example:\n  apcc-graph bench kinematics --frames 1000000",
+    "bench sequences": "example:\n  apcc-graph bench sequences --frames 1000 --rows 1000000",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
 }
 
@@ -151,6 +152,30 @@ def _run_bench_kinematics(args: argparse.Namespace) -> str:
     return "\n".join(lines)
 
 
+def _run_bench_sequences(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.sequences import run_sequence_benchmark
+    from apcc_graph.robot import load_robot
+
+    robot = load_robot(args.robot)
+    if not robot.camera_segments:
+        raise UserError(f"{args.robot}: the robot has no camera")
+    r = run_sequence_benchmark(robot, n_frames=args.frames, target_rows=args.rows,
+                               repeats=args.repeats, seed=args.seed)
+    lines = [
+        f"sequences: {robot.n_segments} segments, {r.n_frames} frames, "
+        f"{r.tracks_per_camera:.0f} tracks per camera and frame:",
+        f"  {r.simulate.step:<40} {r.simulate.rows:>9} rows {r.simulate.seconds:>8.3f} s",
+        f"  {r.save.step:<40} {r.save.rows:>9} rows {r.save.seconds:>8.3f} s",
+        f"  {r.load.step:<40} {r.load.rows:>9} rows {r.load.seconds:>8.3f} s   1.0x",
+    ]
+    for peer in r.peers:
+        lines.append(f"  {peer.step:<40} {peer.rows:>9} rows {peer.seconds:>8.3f} s "
+                     f"{peer.seconds / r.load.seconds:>5.1f}x")
+    per_million = r.load.seconds * 1e6 / r.load.rows
+    lines.append(f"load time per million track rows: {per_million:.2f} s (target: well under 2 s)")
+    return "\n".join(lines)
+
+
 def _run_bench_calibration(args: argparse.Namespace) -> str:
     from apcc_graph.bench.calibration import run_calibration_benchmark
 
@@ -268,6 +293,20 @@ def build_parser() -> argparse.ArgumentParser:
     kin.add_argument("--repeats", type=int, default=3, help="timing repeats, best kept")
     kin.add_argument("--seed", type=int, default=0)
     kin.set_defaults(run=_run_bench_kinematics)
+
+    seqb = bench_sub.add_parser(
+        "sequences", help="simulate, save and load sequences; load vs loadtxt and csv peers",
+        description="Time the simulator (3 x 1000 frames x ~200 tracks) and loading about a "
+        "million track rows, with numpy.loadtxt and the csv module as peers.",
+        epilog=_EXAMPLES["bench sequences"], formatter_class=fmt,
+    )
+    seqb.add_argument("--robot", default="data/robots/planar_three.toml")
+    seqb.add_argument("--frames", type=_at_least(2), default=1000)
+    seqb.add_argument("--rows", type=_at_least(1), default=1_000_000,
+                      help="track rows for the load test (default 10^6)")
+    seqb.add_argument("--repeats", type=_at_least(1), default=3)
+    seqb.add_argument("--seed", type=int, default=0)
+    seqb.set_defaults(run=_run_bench_sequences)
 
     calb = bench_sub.add_parser(
         "calibration",
