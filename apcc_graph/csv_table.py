@@ -10,6 +10,7 @@ from rows to lines) except at the end of the file.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -49,7 +50,7 @@ class CsvTable:
         if bad.any():
             row, col = np.argwhere(bad)[0]
             raise self.error(row, self.names[col],
-                             f"expected a finite number, got {self.values[row, col]!r}")
+                             f"expected a finite number, got {float(self.values[row, col])!r}")
 
     def integers(self, name: str, minimum: int = 0) -> NDArray[np.int64]:
         """A column of integers ``>= minimum`` (as written: no fraction)."""
@@ -57,7 +58,8 @@ class CsvTable:
         bad = (col != np.round(col)) | (col < minimum) | (np.abs(col) > 2**53)
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
-            raise self.error(row, name, f"expected an integer >= {minimum}, got {col[row]!r}")
+            raise self.error(row, name,
+                             f"expected an integer >= {minimum}, got {float(col[row])!r}")
         return col.astype(np.int64)
 
 
@@ -128,14 +130,19 @@ def _header_message(path: Path, names: list[str], expected: list[str]) -> str:
 
 
 def _first_blank_line(body: bytes) -> int | None:
-    """1-based line number (within ``body``, whose line 1 is file line 2) of a blank line."""
-    for marker in (b"\n\n", b"\n\r\n"):
-        pos = body.find(marker)
-        if pos >= 0:
-            return body.count(b"\n", 0, pos + 1) + 1
+    """1-based line (within ``body``, whose line 1 is file line 2) of the first blank line."""
     if body.startswith((b"\n", b"\r\n")):
         return 1
-    return None
+    found = [pos for pos in (body.find(b"\n\n"), body.find(b"\n\r\n")) if pos >= 0]
+    if not found:
+        return None
+    return body.count(b"\n", 0, min(found) + 1) + 1
+
+
+_NUMBER = re.compile(
+    r"\s*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)\s*", re.IGNORECASE
+)
+"""What numpy.loadtxt reads as a float (ASCII digits, no underscores)."""
 
 
 def _diagnose(path: Path, names: list[str]) -> None:
@@ -148,11 +155,9 @@ def _diagnose(path: Path, names: list[str]) -> None:
                 raise ValueError(f"{path}: line {number}: expected {len(names)} fields "
                                  f"({','.join(names)}), got {len(fields)}")
             for name, field in zip(names, fields, strict=True):
-                try:
-                    float(field)
-                except ValueError:
+                if _NUMBER.fullmatch(field) is None:
                     raise ValueError(f"{path}: line {number}, column '{name}': "
-                                     f"{field.strip()!r} is not a number") from None
+                                     f"{field.strip()!r} is not a number")
     raise ValueError(f"{path}: could not be read as a numeric CSV table")
 
 

@@ -39,8 +39,8 @@ from apcc_graph.sequence import Sequence, Tracks
 
 BASE_COLUMNS = ["base_x", "base_y", "base_z", "base_qw", "base_qx", "base_qy", "base_qz"]
 TRACK_COLUMNS = ["frame", "track_id", "u", "v"]
-_CAM_FILE = re.compile(r"cam_(\d+)\.csv")
-_CAM_DIR = re.compile(r"cam_(\d+)")
+_CAM_FILE = re.compile(r"cam_([1-9]\d*)\.csv")
+_CAM_DIR = re.compile(r"cam_([1-9]\d*)")
 _IMAGE_FILE = re.compile(r"(\d{6})\.png")
 
 
@@ -98,14 +98,15 @@ def _load_frames(
     wrong = np.flatnonzero(frames != np.arange(len(frames)))
     if len(wrong):
         row = int(wrong[0])
-        raise table.error(row, "frame", f"expected frame {row}, got {frames[row]} (frames are "
+        raise table.error(row, "frame", f"expected frame {row}, got {int(frames[row])} (frames are "
                           "0-based, consecutive and increasing)")
     ts = table.column("timestamp")
     back = np.flatnonzero(np.diff(ts) <= 0)
     if len(back):
         row = int(back[0]) + 1
-        raise table.error(row, "timestamp", f"{ts[row]!r} s is not after the previous frame's "
-                          f"{ts[row - 1]!r} s; expected strictly increasing timestamps")
+        raise table.error(row, "timestamp", f"{float(ts[row])!r} s is not after the previous "
+                          f"frame's {float(ts[row - 1])!r} s; expected strictly increasing "
+                          "timestamps")
     base = _base_poses(table) if "base_x" in names else None
     thetas = psis = None
     if "theta_1" in names:
@@ -235,8 +236,9 @@ def save_sequence(sequence: Sequence, path: str | Path) -> None:
             file.
 
     Raises:
-        ValueError: the folder holds a tracks file for a camera this robot does not have (it would
-            make the saved folder unreadable); nothing is written then.
+        ValueError: the folder holds a tracks file for a camera this robot does not have, or
+            images that are not this sequence's (either would make the saved folder unreadable or
+            wrong); nothing is written then.
     """
     folder = Path(path)
     if folder.exists() and not folder.is_dir():
@@ -250,6 +252,20 @@ def save_sequence(sequence: Sequence, path: str | Path) -> None:
         if stale:
             raise ValueError(f"{tracks_dir}: holds {', '.join(stale)}, which this robot has no "
                              "camera for; save into an empty folder")
+    targets = {
+        (folder / "images" / f"cam_{cam + 1}" / f"{frame:06d}.png").resolve()
+        for cam, files in sequence.images.items() for frame in files
+    }
+    images_dir = folder / "images"
+    if images_dir.is_dir():
+        stale_images = sorted(
+            str(p.relative_to(folder)) for p in images_dir.rglob("*")
+            if p.is_file() and not p.name.startswith(".") and p.resolve() not in targets
+        )
+        if stale_images:
+            shown = ", ".join(stale_images[:3]) + (" ..." if len(stale_images) > 3 else "")
+            raise ValueError(f"{images_dir}: holds {len(stale_images)} image(s) that are not part "
+                             f"of this sequence ({shown}); save into an empty folder")
     atomic_write_bytes(folder / "robot.toml", tomli_w.dumps(robot_to_toml(robot)).encode())
     atomic_write_text(folder / "frames.csv", frames_csv(sequence))
     for cam in robot.camera_segments:

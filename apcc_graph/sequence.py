@@ -113,8 +113,8 @@ class Sequence:
     Args:
         robot: the robot (its cameras say which segments can have tracks).
         timestamps: ``(F,)`` seconds, finite and strictly increasing; F >= 1.
-        tracks: camera (0-based segment index) -> :class:`Tracks`; cameras without an entry saw
-            nothing.
+        tracks: camera (0-based segment index) -> :class:`Tracks`; cameras without an entry (or
+            with empty Tracks, which are dropped) saw nothing.
         world_T_base: ``(F, 4, 4)`` robot base pose per frame, or ``None`` for a fixed base.
         thetas: ``(F, S)`` ground-truth bending angles (radians), or ``None``.
         psis: ``(F, S)`` ground-truth bending-plane angles (radians), or ``None``.
@@ -161,6 +161,8 @@ class Sequence:
                 )
             if not isinstance(trk, Tracks):
                 raise ValueError(f"Sequence.tracks[{cam}]: expected Tracks")
+            if len(trk) == 0:
+                continue  # a camera that saw nothing has no entry
             if len(trk) and trk.frames[-1] >= n_frames:
                 raise ValueError(
                     f"Sequence.tracks[{cam}]: an observation in frame {trk.frames[-1]} but the "
