@@ -1,2 +1,17 @@
 """Benchmarks behind ``apcc-graph bench ...``: each returns a result object with its figures and
 the ratios against the peers measured in the same run. They are commands, never timed tests."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+
+def best_time(fn: Callable[[], object], repeats: int) -> float:
+    """Best wall time of ``repeats`` calls of ``fn`` (seconds)."""
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best

@@ -12,13 +12,12 @@ Peers run on fewer frames (they are slow) and are compared per frame.
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
+from apcc_graph.bench import best_time
 from apcc_graph.kinematics import apcc_in_plane, apcc_joint_frames
 from apcc_graph.robot import Robot
 
@@ -53,15 +52,6 @@ class KinematicsBenchmark:
     def ratio(self, row: TimingRow) -> float:
         """How many times slower per frame than the reference."""
         return row.per_frame_ns / self.reference.per_frame_ns
-
-
-def _best_time(fn: Callable[[], object], repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def _pose3_loop(robot: Robot, thetas: np.ndarray) -> np.ndarray:
@@ -115,22 +105,22 @@ def run_kinematics_benchmark(
 
     rows = [
         TimingRow(
-            "Robot.forward (planar)", n_frames, _best_time(lambda: robot.forward(thetas), repeats)
+            "Robot.forward (planar)", n_frames, best_time(lambda: robot.forward(thetas), repeats)
         ),
         TimingRow(
             "Robot.forward (with psi)",
             n_frames,
-            _best_time(lambda: robot.forward(thetas, psis), repeats),
+            best_time(lambda: robot.forward(thetas, psis), repeats),
         ),
         TimingRow(
             "peer: joint-by-joint 4x4 matmul",
             peer_frames,
-            _best_time(lambda: _matmul_chain(robot, thetas[:peer_frames]), repeats),
+            best_time(lambda: _matmul_chain(robot, thetas[:peer_frames]), repeats),
         ),
         TimingRow(
             "peer: gtsam.Pose3 Python loop",
             loop_frames,
-            _best_time(lambda: _pose3_loop(robot, thetas[:loop_frames]), 1),
+            best_time(lambda: _pose3_loop(robot, thetas[:loop_frames]), 1),
         ),
     ]
     ours = robot.forward(thetas[:loop_frames])

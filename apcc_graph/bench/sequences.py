@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import csv
 import tempfile
-import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from apcc_graph.bench import best_time
 from apcc_graph.io import load_sequence, save_sequence
 from apcc_graph.robot import Robot
 from apcc_graph.simulate import simulate
@@ -41,15 +40,6 @@ class SequenceBenchmark:
     save: SequenceTiming
     load: SequenceTiming
     peers: tuple[SequenceTiming, ...]
-
-
-def _best(fn: Callable[[], object], repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def _csv_module(files: list[Path]) -> None:
@@ -79,7 +69,7 @@ def run_sequence_benchmark(robot: Robot, n_frames: int = 1000, target_rows: int 
         folder: where to write the sequence (default: a temporary folder, removed after).
     """
     n_cams = len(robot.camera_segments)
-    sim_seconds = _best(lambda: simulate(robot, n_frames, seed=seed), 1)
+    sim_seconds = best_time(lambda: simulate(robot, n_frames, seed=seed), 1)
     sim = simulate(robot, n_frames, seed=seed)
     rows = sum(len(t) for t in sim.sequence.tracks.values())
     per_camera = rows / (n_frames * n_cams)
@@ -93,14 +83,14 @@ def run_sequence_benchmark(robot: Robot, n_frames: int = 1000, target_rows: int 
         dense_rows = sum(len(t) for t in dense.tracks.values())
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(folder) if folder is not None else Path(tmp) / "sequence"
-        save_seconds = _best(lambda: save_sequence(dense, out), 1)
+        save_seconds = best_time(lambda: save_sequence(dense, out), 1)
         files = sorted((out / "tracks").glob("cam_*.csv"))
-        load_seconds = _best(lambda: load_sequence(out), repeats)
+        load_seconds = best_time(lambda: load_sequence(out), repeats)
         peers = (
             SequenceTiming("peer: numpy.loadtxt only (no checks)", dense_rows,
-                           _best(lambda: _loadtxt(files), repeats)),
+                           best_time(lambda: _loadtxt(files), repeats)),
             SequenceTiming("peer: csv module + float()", dense_rows,
-                           _best(lambda: _csv_module(files), 1)),
+                           best_time(lambda: _csv_module(files), 1)),
         )
     return SequenceBenchmark(
         n_frames=n_frames,
