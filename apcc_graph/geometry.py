@@ -116,6 +116,11 @@ def essential_matrix(camA_T_camB: ArrayLike) -> FloatArray:
     return skew(pose[..., :3, 3]) @ pose[..., :3, :3]
 
 
+def _dot(x: FloatArray, y: FloatArray) -> FloatArray:
+    """Row-wise dot products over the last axis (one fused pass, no temporary)."""
+    return np.einsum("...i,...i->...", x, y)
+
+
 def sampson_error(f_a: ArrayLike, f_b: ArrayLike, E: ArrayLike,
                   dE: ArrayLike | None = None) -> FloatArray | tuple[FloatArray, FloatArray]:
     """Sampson error of unit bearings for one or many essential matrices (radians).
@@ -136,8 +141,8 @@ def sampson_error(f_a: ArrayLike, f_b: ArrayLike, E: ArrayLike,
     E = np.asarray(E, dtype=float)
     Efb = f_b @ np.swapaxes(E, -1, -2)  # rows: E f_b
     Etfa = f_a @ E  # rows: E^T f_a
-    num = np.sum(f_a * Efb, axis=-1)
-    den2 = np.sum(Efb * Efb, axis=-1) + np.sum(Etfa * Etfa, axis=-1) - 2.0 * num * num
+    num = _dot(f_a, Efb)
+    den2 = _dot(Efb, Efb) + _dot(Etfa, Etfa) - 2.0 * num * num
     den = np.sqrt(np.maximum(den2, 0.0))
     ok = den > _TINY
     safe = np.where(ok, den, 1.0)
@@ -147,8 +152,8 @@ def sampson_error(f_a: ArrayLike, f_b: ArrayLike, E: ArrayLike,
     dE = np.asarray(dE, dtype=float)
     dEfb = f_b @ np.swapaxes(dE, -1, -2)
     dEtfa = f_a @ dE
-    dnum = np.sum(f_a * dEfb, axis=-1)
-    dden = (np.sum(Efb * dEfb, axis=-1) + np.sum(Etfa * dEtfa, axis=-1)
+    dnum = _dot(f_a, dEfb)
+    dden = (_dot(Efb, dEfb) + _dot(Etfa, dEtfa)
             - 2.0 * num * dnum) / safe
     de = np.where(ok, (dnum * den - num * dden) / (safe * safe), 0.0)
     return e, de

@@ -1,0 +1,55 @@
+"""The result of an estimator: angles per frame and segment, their uncertainty, tip poses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.robot import Robot
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Estimated bending angles of a sequence.
+
+    Attributes:
+        method: the estimator (``"chain"``, ``"batch"``, ``"smoother"``).
+        robot: the robot model used.
+        timestamps: ``(F,)`` seconds.
+        thetas: ``(F, S)`` estimated angles (radians).
+        sigmas: ``(F, S)`` marginal standard deviations (radians); NaN where the method gives none.
+        status: ``(F, S)`` what happened per frame and segment (e.g. ``"ok"``, ``"no-motion"``,
+            ``"no-consensus"``, ``"no-camera"``, ``"initial"``).
+        inliers: ``(F, S)`` inlier correspondences used (0 where none).
+        world_T_base: ``(F, 4, 4)`` base poses if the sequence had them.
+    """
+
+    method: str
+    robot: Robot
+    timestamps: FloatArray
+    thetas: FloatArray
+    sigmas: FloatArray
+    status: NDArray[np.str_]
+    inliers: NDArray[np.int64]
+    world_T_base: FloatArray | None = field(default=None, repr=False)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames."""
+        return len(self.timestamps)
+
+    def world_T_tip(self) -> FloatArray:
+        """``(F, S, 4, 4)`` tip poses of every segment from the estimated angles."""
+        return self.robot.forward(self.thetas, world_T_base=self.world_T_base)
+
+    def errors(self, truth: FloatArray) -> FloatArray:
+        """``(F, S)`` estimate minus truth (radians)."""
+        return self.thetas - np.asarray(truth, dtype=float)
+
+    def rms(self, truth: FloatArray) -> FloatArray:
+        """``(S,)`` RMS error per segment against ground truth (radians)."""
+        return np.sqrt(np.mean(self.errors(truth) ** 2, axis=0))
