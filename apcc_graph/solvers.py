@@ -452,12 +452,12 @@ def one_point_ransac(
     if not math.isfinite(best_theta):
         return math.nan, RansacInfo(False, "no-consensus", "no correspondence gave an admissible "
                                     "root", none, iterations, math.inf, 0, hyp_count)
-    inl = np.abs(epipolar_errors(fa, fb, view, best_theta)) < threshold
-    if inl.sum() >= 2:
-        refined = refine_theta(fa[inl], fb[inl], view, best_theta, threshold)
-        errors = epipolar_errors(fa, fb, view, refined)
-        if np.minimum(errors * errors, thr2).sum() <= best_score:
-            best_theta = refined
+    # Local optimisation (LO-RANSAC): refine on the inliers, re-select them, refine again.
+    for _ in range(2):
+        inl = np.abs(epipolar_errors(fa, fb, view, best_theta)) < threshold
+        if inl.sum() < 2:
+            break
+        best_theta = refine_theta(fa[inl], fb[inl], view, best_theta, threshold)
     errors = epipolar_errors(fa, fb, view, best_theta)
     inl = np.abs(errors) < threshold
     score = float(np.minimum(errors * errors, thr2).sum())
