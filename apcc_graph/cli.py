@@ -24,6 +24,8 @@ _EXAMPLES = {
     "calibrate": "example:\n  apcc-graph calibrate data/calibration/paper_example.toml",
     "bench kinematics": "example:\n  apcc-graph bench kinematics --frames 1000000",
     "bench sequences": "example:\n  apcc-graph bench sequences --frames 1000 --rows 1000000",
+    "bench solver": "example:\n  apcc-graph bench solver --trials 20",
+    "bench accuracy": "example:\n  apcc-graph bench accuracy --trials 1000",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
 }
 
@@ -176,6 +178,47 @@ def _run_bench_sequences(args: argparse.Namespace) -> str:
     return "\n".join(lines)
 
 
+def _run_bench_solver(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.solver import run_solver_benchmark
+
+    r = run_solver_benchmark(trials=args.trials, seed=args.seed)
+    ours = "one_point_ransac"
+    lines = [f"1-point RANSAC vs essential-matrix peers, {r.trials} trials per setting, 0.5 px, "
+             "0.5 m segment moving 3-5 deg, f = 500 px (median time, median |theta error|):",
+             f"  {'method':<32} {'N':>5} {'out':>4} {'time':>10} {'|error|':>11} "
+             f"{'time/ours':>9} {'err/ours':>8} {'fail':>4}"]
+    for row in r.rows:
+        ref = r.row(ours, row.n_points, row.outlier_fraction)
+        lines.append(
+            f"  {row.method:<32} {row.n_points:>5} {row.outlier_fraction:>4.0%} "
+            f"{row.median_seconds * 1e3:>7.2f} ms {math.degrees(row.median_error):>7.4f} deg "
+            f"{row.median_seconds / ref.median_seconds:>8.1f}x "
+            f"{row.median_error / ref.median_error:>7.2f}x {row.failures:>4}")
+    if "poselib.estimate_relative_pose" not in r.methods:
+        lines.append("  (PoseLib not installed: pip install 'apcc-graph[bench]' adds it)")
+    lines.append(f"minimal solver: {r.minimal_cost * 1e6:.2f} us per correspondence in a batch "
+                 "of 1000 (target: under 2 us)")
+    return "\n".join(lines)
+
+
+def _run_bench_accuracy(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.accuracy import run_accuracy_benchmark
+
+    r = run_accuracy_benchmark(trials=args.trials, points=args.points, seed=args.seed,
+                               progress=True)
+    lines = [f"Fig. 10 protocol: {r.points} points, no outliers, {r.rows[0].trials} trials per "
+             "point; efficiency = median(|error| / CRB) / 0.6745 (1.0 = at the bound)",
+             f"  {'base':<7} {'noise':>6} {'mean |err|':>12} {'median |err|':>13} "
+             f"{'median CRB':>12} {'efficiency':>10} {'fail':>5}"]
+    for row in r.rows:
+        eff = "-" if math.isnan(row.efficiency) else f"{row.efficiency:.2f}"
+        lines.append(
+            f"  {row.base:<7} {row.noise_px:>4.1f}px {math.degrees(row.mean_error):>8.4f} deg "
+            f"{math.degrees(row.median_error):>9.4f} deg {math.degrees(row.median_bound):>8.4f}"
+            f" deg {eff:>10} {row.failures:>5}")
+    return "\n".join(lines)
+
+
 def _run_bench_calibration(args: argparse.Namespace) -> str:
     from apcc_graph.bench.calibration import run_calibration_benchmark
 
@@ -307,6 +350,29 @@ def build_parser() -> argparse.ArgumentParser:
     seqb.add_argument("--repeats", type=_at_least(1), default=3)
     seqb.add_argument("--seed", type=int, default=0)
     seqb.set_defaults(run=_run_bench_sequences)
+
+    solb = bench_sub.add_parser(
+        "solver", help="1-point RANSAC vs OpenCV (and PoseLib) essential-matrix RANSAC",
+        description="Time and accuracy of one_point_ransac against cv2.findEssentialMat "
+        "(RANSAC and USAC_DEFAULT) + recoverPose and PoseLib, on the same correspondences.",
+        epilog=_EXAMPLES["bench solver"], formatter_class=fmt,
+    )
+    solb.add_argument("--trials", type=_at_least(1), default=20, help="trials per setting")
+    solb.add_argument("--seed", type=int, default=0)
+    solb.set_defaults(run=_run_bench_solver)
+
+    accb = bench_sub.add_parser(
+        "accuracy", help="the paper's Fig. 10 protocol: error vs pixel noise against the CRB",
+        description="Fixed and moving base, noise 0-2 px: mean and median error of "
+        "one_point_ransac and their ratio to the Cramer-Rao bound.",
+        epilog=_EXAMPLES["bench accuracy"], formatter_class=fmt,
+    )
+    accb.add_argument("--trials", type=_at_least(1), default=5000,
+                      help="trials per noise level (the paper: 5000)")
+    accb.add_argument("--points", type=_at_least(1), default=100,
+                      help="correspondences per trial")
+    accb.add_argument("--seed", type=int, default=0)
+    accb.set_defaults(run=_run_bench_accuracy)
 
     calb = bench_sub.add_parser(
         "calibration",

@@ -1,12 +1,13 @@
 """Evaluation: accuracy against ground truth and against the physical limit (Cramer-Rao bound).
 
-Cramer-Rao bound on theta_b. Each correspondence's Sampson error ``e_i`` is, to first order, its
-geometric (maximum-likelihood) residual after eliminating the unknown 3-D point, in radians on
-the bearings' tangent planes. With isotropic noise of ``sigma`` radians per axis on each bearing,
-``e_i ~ N(0, sigma^2)``, so the Fisher information on theta_b is ``sum_i (de_i/dtheta_b)^2 /
-sigma^2`` and no unbiased estimator has a smaller standard deviation than its inverse square root.
-Pixel noise maps to ``sigma = noise_px / focal`` (exact at the principal point, slightly
-conservative towards the image corners).
+Cramer-Rao bound on theta_b. To first order each correspondence's epipolar residual
+``r_i = f_a^T E f_b`` is Gaussian with variance ``noise_px^2 (|J_a^T E f_b|^2 + |J_b^T E^T f_a|^2)``
+where ``J`` is the derivative of a unit bearing with respect to its pixel (pinhole; the unknown
+3-D point is eliminated by the epipolar constraint itself). The Fisher information on theta_b is
+``sum_i (dr_i/dtheta_b)^2 / var(r_i)`` and no unbiased estimator has a smaller standard
+deviation than its inverse square root. Without a camera the pixel Jacobian is replaced by
+``1 / focal`` on the tangent plane (exact at the principal point; the bound is then too large
+towards the image corners, where a pixel spans a smaller angle).
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from apcc_graph.geometry import SegmentTwoView, epipolar_errors
+from apcc_graph.camera import TipCamera
+from apcc_graph.geometry import SegmentTwoView, skew
 from apcc_graph.segment import Segment
 
 
@@ -31,6 +33,7 @@ def crlb_theta(
     noise_px: float = 1.0,
     focal: float = 500.0,
     psi: float = 0.0,
+    camera: TipCamera | None = None,
 ) -> float:
     """Cramer-Rao bound (standard deviation, radians) on theta_b given theta_a.
 
@@ -42,16 +45,38 @@ def crlb_theta(
         tip_T_cam: camera mounting.
         baseA_T_baseB: base motion a -> b.
         noise_px: pixel noise standard deviation per axis.
-        focal: focal length in pixels.
+        focal: focal length in pixels (used when ``camera`` is not given).
         psi: bending-plane angle (radians).
+        camera: the camera, for exact pixel-to-bearing Jacobians (pinhole part).
 
     Returns:
         The smallest achievable standard deviation of theta_b (radians); ``inf`` without
         information (e.g. no correspondences).
     """
+    f_a = np.asarray(f_a, dtype=float)
+    f_b = np.asarray(f_b, dtype=float)
     view = SegmentTwoView.build(theta_a, segment, tip_T_cam, baseA_T_baseB, psi)
-    _, de = epipolar_errors(np.asarray(f_a, float), np.asarray(f_b, float), view, theta_b,
-                            derivative=True)
-    sigma = noise_px / focal
-    info = float(np.sum(np.square(de))) / (sigma * sigma)
+    pose = view.relative_pose(theta_b)
+    d_pose = view.relative_pose_derivative(theta_b)
+    E = skew(pose[:3, 3]) @ pose[:3, :3]
+    dE = skew(d_pose[:3, 3]) @ pose[:3, :3] + skew(pose[:3, 3]) @ d_pose[:3, :3]
+    dr = np.einsum("ni,ij,nj->n", f_a, dE, f_b)
+    g_a = f_b @ E.T  # d r / d f_a
+    g_b = f_a @ E  # d r / d f_b
+    var = noise_px**2 * (_pixel_gain(f_a, g_a, camera, focal) + _pixel_gain(f_b, g_b, camera,
+                                                                           focal))
+    info = float(np.sum(dr * dr / np.maximum(var, 1e-300)))
     return 1.0 / math.sqrt(info) if info > 0.0 else math.inf
+
+
+def _pixel_gain(f: np.ndarray, grad: np.ndarray, camera: TipCamera | None,
+                focal: float) -> np.ndarray:
+    """``|J^T grad|^2`` with J the derivative of the unit bearing f with respect to its pixel."""
+    tangent = grad - np.einsum("ni,ni->n", grad, f)[:, None] * f  # (I - f f^T) grad
+    if camera is None:
+        return np.einsum("ni,ni->n", tangent, tangent) / focal**2
+    # f = r / |r| with r = ((u - cx) / fx, (v - cy) / fy, 1): df/du = (I - f f^T) e_x / (fx |r|).
+    norm_r = 1.0 / f[:, 2]  # |r| = 1 / f_z
+    du = tangent[:, 0] / (camera.fx * norm_r)
+    dv = tangent[:, 1] / (camera.fy * norm_r)
+    return du * du + dv * dv

@@ -346,7 +346,7 @@ def _required_iterations(inlier_ratio: float, confidence: float) -> float:
 
 def refine_theta(
     f_a: FloatArray, f_b: FloatArray, view: SegmentTwoView, theta_b: float, threshold: float,
-    iterations: int = 10,
+    iterations: int = 5,
 ) -> float:
     """Robust 1-D Gauss-Newton on the Sampson error (Huber weights, scale = threshold).
 
@@ -364,7 +364,7 @@ def refine_theta(
             break
         delta = float(np.sum(weight * de * e)) / hess
         theta = min(max(theta - delta, -lim), lim)
-        if abs(delta) < 1e-10:
+        if abs(delta) < 1e-9:  # radians; far below any measurable change
             break
     return theta
 
@@ -428,7 +428,6 @@ def one_point_ransac(
                 False, "no-motion", "most correspondences show no parallax: the camera did not "
                 "move, theta_b = theta_a is the only consistent reading and is not a measurement",
                 none, 0, math.inf)
-    coef = constraint_coefficients(fa, fb, view)
     fn = _Function(view)
     thr2 = threshold * threshold
     best_score, best_theta, hyp_count, iterations = math.inf, math.nan, 0, 0
@@ -437,7 +436,8 @@ def one_point_ransac(
         take = int(min(batch, max_iterations - iterations))
         sample = rng.integers(0, len(fa), take)
         iterations += take
-        roots = _solve(coef[sample], view, DEFAULT_GRID_STEP, fn).ravel()
+        coef = constraint_coefficients(fa[sample], fb[sample], view)
+        roots = _solve(coef, view, DEFAULT_GRID_STEP, fn).ravel()
         roots = roots[np.isfinite(roots)]
         if len(roots) == 0:
             continue
