@@ -69,11 +69,25 @@ def _basis(theta: FloatArray, segment: Segment) -> tuple[FloatArray, FloatArray]
     return phi, dphi
 
 
+def _cross(u: FloatArray, v: FloatArray) -> FloatArray:
+    """Row-wise cross products of ``(N, 3)`` arrays (or one row and ``(N, 3)``)."""
+    u0, u1, u2 = u[..., 0], u[..., 1], u[..., 2]
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=-1)
+
+
 def _rodrigues_terms(u: FloatArray, v: FloatArray, n: FloatArray) -> FloatArray:
-    """Coefficients of ``u . R_beta v`` on ``(1, cos beta, sin beta)``, ``(N, 3)``."""
+    """Coefficients of ``u . R_beta v`` on ``(1, cos beta, sin beta)``, ``(N, 3)``.
+
+    ``R_beta v = (n.v) n + cos(beta) (v - (n.v) n) + sin(beta) (n x v)``, and
+    ``u . (n x v) = (u x n) . v``.
+    """
     un, vn = u @ n, v @ n
-    return np.column_stack([un * vn, np.einsum("ij,ij->i", u, v) - un * vn,
-                            np.einsum("ij,ij->i", u, np.cross(n, v))])
+    out = np.empty((len(u), 3))
+    out[:, 0] = un * vn
+    out[:, 1] = np.einsum("ij,ij->i", u, v) - out[:, 0]
+    out[:, 2] = np.einsum("ij,ij->i", _cross(u, n), v)
+    return out
 
 
 def constraint_coefficients(f_a: FloatArray, f_b: FloatArray, view: SegmentTwoView) -> FloatArray:
@@ -91,10 +105,10 @@ def constraint_coefficients(f_a: FloatArray, f_b: FloatArray, view: SegmentTwoVi
     e1 = np.array([cp, sp, 0.0])
     e3 = np.array([0.0, 0.0, 1.0])
     coef = np.empty((len(a), 9))
-    coef[:, 0:3] = (_rodrigues_terms(a, np.cross(tm, w), n)
-                    + _rodrigues_terms(np.cross(a, d), w, n))
-    coef[:, 3:6] = _rodrigues_terms(np.cross(a, e1), w, n)
-    coef[:, 6:9] = _rodrigues_terms(np.cross(a, e3), w, n)
+    coef[:, 0:3] = (_rodrigues_terms(a, _cross(tm, w), n)
+                    + _rodrigues_terms(_cross(a, d), w, n))
+    coef[:, 3:6] = _rodrigues_terms(_cross(a, e1), w, n)
+    coef[:, 6:9] = _rodrigues_terms(_cross(a, e3), w, n)
     return coef
 
 
@@ -199,8 +213,9 @@ def _solve(coef: FloatArray, view: SegmentTwoView, step: float,
     # (G, N), grid-major: neighbouring grid rows are contiguous blocks for the comparisons below.
     values = grid_basis @ coef.T
     positive = values > 0.0
-    change = (positive[:-1] != positive[1:]) & (values[1:] != 0.0) | (values[1:] == 0.0)
-    cols, rows = np.nonzero(change)
+    # A sign change brackets a root; an exact zero counts as non-positive, so it ends a bracket
+    # (the refinement then stops there at once).
+    cols, rows = np.nonzero(positive[:-1] != positive[1:])
     lo, hi = grid[cols], grid[cols + 1]
     flo, fhi = values[cols, rows], values[cols + 1, rows]
     extra = _split_near_double_roots(coef, fn, grid, values, positive)
@@ -292,13 +307,13 @@ def _split_near_double_roots(
     da = fn.value_and_slope(c, a)[1]
     db = fn.value_and_slope(c, b)[1]
     x = 0.5 * (a + b)
-    for _ in range(12):
+    for _ in range(8):  # Illinois: regula falsi on f' that halves a stale end's weight
         x = np.where(db != da, a - da * (b - a) / np.where(db != da, db - da, 1.0), 0.5 * (a + b))
         x = np.clip(x, np.minimum(a, b), np.maximum(a, b))
         dx = fn.value_and_slope(c, x)[1]
         same_side = np.sign(dx) == np.sign(da)
         a, da = np.where(same_side, x, a), np.where(same_side, dx, da)
-        b, db = np.where(same_side, b, x), np.where(same_side, db, dx)
+        b, db = np.where(same_side, b, x), np.where(same_side, 0.5 * db, dx)
     fx = fn.value_and_slope(c, x)[0]
     split = fx * fm < 0.0
     if not split.any():
