@@ -25,12 +25,14 @@ nine basis functions shared by all correspondences, and nine coefficients per co
   change brackets a root, refined by safeguarded Newton (bisection when a step leaves the bracket)
   to machine precision. Two roots closer than the grid step (default 1 degree) show no sign
   change; they sit on either side of a local extremum of h, so wherever ``|h|`` has a local
-  minimum on the grid without a sign change, the extremum is located (regula falsi on h') and,
-  if h changes sign there, both roots are bracketed. The basis functions vary on the scale of a
-  radian (frequencies <= ~2 per radian), so h has at most one extremum per grid interval and
-  every real root in the interval is found (tests compare with a dense reference scan); only
-  an exact double root (a tangency, where the correspondence carries no information) is
-  reported once or not at all.
+  minimum on the grid without a sign change (and a parabola through the three nodes comes near
+  zero), the extremum is located (Illinois regula falsi on h') and, if h changes sign there,
+  both roots are bracketed. The basis functions vary on the scale of a radian (frequencies
+  <= ~2 per radian), so h rarely turns twice within a grid step. What remains: when three roots
+  fall within one grid step, the sign change shows one of them and the other two may be missed
+  (tests construct such cases: under 1% of deliberately close root pairs; 90,000 random
+  correspondences produced none); an exact double root (a tangency, where the correspondence
+  carries no information) is reported once or not at all.
 
 Returns follow PoseLib's convention: all admissible roots, padded with NaN.
 """
@@ -154,9 +156,13 @@ class _Function:
 
 
 def _checked_bearings(f_a: ArrayLike, f_b: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    f_a = np.asarray(f_a, dtype=float).reshape(-1, 3)
-    f_b = np.asarray(f_b, dtype=float).reshape(-1, 3)
-    if f_a.shape != f_b.shape:
+    f_a = np.asarray(f_a, dtype=float)
+    f_b = np.asarray(f_b, dtype=float)
+    if f_a.ndim == 1 and f_a.shape == (3,):
+        f_a = f_a[None]
+    if f_b.ndim == 1 and f_b.shape == (3,):
+        f_b = f_b[None]
+    if f_a.ndim != 2 or f_a.shape[1] != 3 or f_a.shape != f_b.shape:
         raise ValueError(f"f_a has shape {f_a.shape} and f_b {f_b.shape}: expected the same "
                          "(N, 3) unit bearings")
     return f_a, f_b
