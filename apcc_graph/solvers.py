@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.geometry import SegmentTwoView, epipolar_errors
+from apcc_graph.geometry import SegmentTwoView, epipolar_errors, skew
 from apcc_graph.kinematics import apcc_in_plane
 from apcc_graph.segment import Segment
 
@@ -390,6 +390,26 @@ def refine_theta(
     return theta
 
 
+def _refine_with_basis(basis: EpipolarBasis, mask: NDArray[np.bool_], theta_b: float,
+                       threshold: float, iterations: int = 5) -> float:
+    """:func:`refine_theta` on the rows in ``mask``, with errors from the basis expansion."""
+    theta = float(theta_b)
+    lim = basis.view.segment.theta_max
+    for _ in range(iterations):
+        e, de = basis.errors(theta, derivative=True)
+        e, de = e[0, mask], de[0, mask]
+        r = np.abs(e)
+        weight = np.where(r <= threshold, 1.0, threshold / np.maximum(r, 1e-300))
+        hess = float(np.sum(weight * de * de))
+        if hess <= 0.0:
+            break
+        delta = float(np.sum(weight * de * e)) / hess
+        theta = min(max(theta - delta, -lim), lim)
+        if abs(delta) < 1e-9:
+            break
+    return theta
+
+
 def one_point_ransac(
     f_a: ArrayLike,
     f_b: ArrayLike,
@@ -450,6 +470,7 @@ def one_point_ransac(
                 "move, theta_b = theta_a is the only consistent reading and is not a measurement",
                 none, 0, math.inf)
     fn = _Function(view)
+    basis = EpipolarBasis(fa, fb, view)
     thr2 = threshold * threshold
     best_score, best_theta, hyp_count, iterations = math.inf, math.nan, 0, 0
     needed = float(max_iterations)
@@ -457,13 +478,12 @@ def one_point_ransac(
         take = int(min(batch, max_iterations - iterations))
         sample = rng.integers(0, len(fa), take)
         iterations += take
-        coef = constraint_coefficients(fa[sample], fb[sample], view)
-        roots = _solve(coef, view, DEFAULT_GRID_STEP, fn).ravel()
+        roots = _solve(basis.coef[sample], view, DEFAULT_GRID_STEP, fn).ravel()
         roots = roots[np.isfinite(roots)]
         if len(roots) == 0:
             continue
         hyp_count += len(roots)
-        errors = epipolar_errors(fa, fb, view, roots)  # (M, N)
+        errors = basis.errors(roots)  # (M, N): all hypotheses scored in one array operation
         scores = np.minimum(errors * errors, thr2).sum(axis=1)
         j = int(np.argmin(scores))
         if scores[j] < best_score:
@@ -474,12 +494,13 @@ def one_point_ransac(
         return math.nan, RansacInfo(False, "no-consensus", "no correspondence gave an admissible "
                                     "root", none, iterations, math.inf, 0, hyp_count)
     # Local optimisation (LO-RANSAC): refine on the inliers, re-select them, refine again.
-    for _ in range(2):
-        inl = np.abs(epipolar_errors(fa, fb, view, best_theta)) < threshold
+    errors = basis.errors(best_theta)[0]
+    for steps in (3, 2):
+        inl = np.abs(errors) < threshold
         if inl.sum() < 2:
             break
-        best_theta = refine_theta(fa[inl], fb[inl], view, best_theta, threshold)
-    errors = epipolar_errors(fa, fb, view, best_theta)
+        best_theta = _refine_with_basis(basis, inl, best_theta, threshold, steps)
+        errors = basis.errors(best_theta)[0]
     inl = np.abs(errors) < threshold
     score = float(np.minimum(errors * errors, thr2).sum())
     inliers = none.copy()
@@ -492,3 +513,67 @@ def one_point_ransac(
                                     int(inl.sum()), hyp_count, all_errors)
     return best_theta, RansacInfo(True, "ok", f"{int(inl.sum())} of {n} inliers", inliers,
                                   iterations, score, int(inl.sum()), hyp_count, all_errors)
+
+
+# ---------------------------------------------------------------------- fast Sampson scoring
+class EpipolarBasis:
+    """Sampson errors of many hypotheses theta_b through the same nine basis functions.
+
+    ``E(theta) = sum_k phi_k(theta) E_k`` exactly: with ``camA_T_camB = [Rc|tc] T [Rm|tm]``,
+    ``E = Rc [R_b tm + px e1 + pz e3 + d]x R_b Rm`` and ``R_b = n n^T + cos(b) (I - n n^T) +
+    sin(b) [n]x``, using ``[R x]x R = R [x]x``. The products ``E_k f_b`` and ``E_k^T f_a`` are
+    computed once per call; scoring M hypotheses is then two ``(M, 9) @ (9, 3N)`` products.
+
+    Args:
+        f_a, f_b: ``(N, 3)`` unit bearings.
+        view: the two-view set-up.
+    """
+
+    def __init__(self, f_a: FloatArray, f_b: FloatArray, view: SegmentTwoView) -> None:
+        self.view = view
+        Rc, tc = view.left[:3, :3], view.left[:3, 3]
+        Rm, tm = view.right[:3, :3], view.right[:3, 3]
+        d = Rc.T @ tc
+        cp, sp = math.cos(view.psi), math.sin(view.psi)
+        n = np.array([-sp, cp, 0.0])
+        e1 = np.array([cp, sp, 0.0])
+        e3 = np.array([0.0, 0.0, 1.0])
+        rot = [np.outer(n, n), np.eye(3) - np.outer(n, n), skew(n)]
+        mats = ([A @ skew(tm) + skew(d) @ A for A in rot]
+                + [skew(e1) @ A for A in rot] + [skew(e3) @ A for A in rot])
+        E_k = Rc @ np.stack(mats) @ Rm  # (9, 3, 3)
+        self.n = len(f_a)
+        # Layout (9, 3, N): each vector component is a contiguous block of N values.
+        self.Efb = (E_k.reshape(27, 3) @ f_b.T).reshape(9, -1)  # rows: E_k f_b
+        self.Etfa = (np.swapaxes(E_k, 1, 2).reshape(27, 3) @ f_a.T).reshape(9, -1)
+        self.coef = (self.Efb.reshape(9, 3, self.n) * f_a.T).sum(axis=1).T  # (N, 9)
+
+    @staticmethod
+    def _sq(x: FloatArray) -> FloatArray:
+        return x[:, 0] * x[:, 0] + x[:, 1] * x[:, 1] + x[:, 2] * x[:, 2]
+
+    @staticmethod
+    def _dot(x: FloatArray, y: FloatArray) -> FloatArray:
+        return x[:, 0] * y[:, 0] + x[:, 1] * y[:, 1] + x[:, 2] * y[:, 2]
+
+    def errors(self, theta: ArrayLike, derivative: bool = False
+               ) -> FloatArray | tuple[FloatArray, FloatArray]:
+        """Sampson errors ``(M, N)`` (radians) for ``(M,)`` hypotheses (and d/dtheta)."""
+        theta = np.atleast_1d(np.asarray(theta, dtype=float))
+        phi, dphi = _basis(theta, self.view.segment)
+        m = len(theta)
+        Efb = (phi @ self.Efb).reshape(m, 3, self.n)
+        Etfa = (phi @ self.Etfa).reshape(m, 3, self.n)
+        num = phi @ self.coef.T
+        den2 = self._sq(Efb) + self._sq(Etfa) - 2.0 * num * num
+        den = np.sqrt(np.maximum(den2, 0.0))
+        ok = den > 1e-300
+        safe = np.where(ok, den, 1.0)
+        e = np.where(ok, num / safe, 0.0)
+        if not derivative:
+            return e
+        dEfb = (dphi @ self.Efb).reshape(m, 3, self.n)
+        dEtfa = (dphi @ self.Etfa).reshape(m, 3, self.n)
+        dnum = dphi @ self.coef.T
+        dden = (self._dot(Efb, dEfb) + self._dot(Etfa, dEtfa) - 2.0 * num * dnum) / safe
+        return e, np.where(ok, (dnum * den - num * dden) / (safe * safe), 0.0)
