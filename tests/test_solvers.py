@@ -552,3 +552,27 @@ def test_refine_theta_reduces_the_robust_cost(seed: int) -> None:
 
 def test_grid_step_constant() -> None:
     assert DEFAULT_GRID_STEP == pytest.approx(math.radians(1.0))
+
+
+# ------------------------------------------------------------------ basis expansion of E
+@pytest.mark.parametrize("moving_base", [False, True])
+@pytest.mark.parametrize("psi", [0.0, 0.7])
+def test_epipolar_basis_matches_direct_sampson_errors(moving_base: bool, psi: float) -> None:
+    """E(theta) = sum_k phi_k(theta) E_k exactly: errors, derivatives and coefficients agree."""
+    from apcc_graph.geometry import SegmentTwoView, epipolar_errors
+    from apcc_graph.solvers import EpipolarBasis, constraint_coefficients
+
+    rng = np.random.default_rng(21)
+    seg = Segment(0.4, k=0.31, delta_max=math.radians(7.0), theta_max=1.2)
+    mount = random_pose(rng, 0.3, 0.05)
+    base = random_pose(rng, 0.05, 0.05) if moving_base else None
+    f_a = random_bearings_in_view(rng, 40)
+    f_b = random_bearings_in_view(rng, 40)
+    view = SegmentTwoView.build(0.3, seg, mount, base, psi)
+    basis = EpipolarBasis(f_a, f_b, view)
+    thetas = np.array([-1.1, -0.2, 0.31, 0.9])
+    e_fast, de_fast = basis.errors(thetas, derivative=True)
+    e_ref, de_ref = epipolar_errors(f_a, f_b, view, thetas, derivative=True)
+    np.testing.assert_allclose(e_fast, e_ref, atol=1e-12)
+    np.testing.assert_allclose(de_fast, de_ref, atol=1e-11)
+    np.testing.assert_allclose(basis.coef, constraint_coefficients(f_a, f_b, view), atol=1e-14)
