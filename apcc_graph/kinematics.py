@@ -29,6 +29,7 @@ the result has that shape followed by ``(4, 4)`` or ``(6,)``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -366,3 +367,40 @@ def apcc_joint_frames(theta: ArrayLike, segment: Segment, psi: ArrayLike = 0.0) 
     link2 = link1 @ _trans_z(segment.l1) @ _rot_y(phi)
     tip = link2 @ _trans_z(segment.l2) @ _rot_y(-segment.delta(theta)) @ _rot_z(-psi)
     return APCCJointFrames(base_T_link1=link1, base_T_link2=link2, base_T_tip=tip)
+
+
+def apcc_transform_scalar(theta: float, segment: Segment,
+                          psi: float = 0.0) -> tuple[FloatArray, FloatArray]:
+    """``apcc_transform`` and its ``d/dtheta`` for one scalar angle, ``(4, 4)`` each.
+
+    Plain ``math`` on scalars: the fast path for factor-graph callbacks that evaluate one
+    configuration at a time (the vectorised functions pay numpy's per-call overhead).
+    """
+    c = segment.link_ratio
+    l1, l2 = segment.l1, segment.l2
+    half = 0.5 * theta
+    s, h = math.sin(half), math.cos(half)
+    root = math.sqrt(1.0 - (c * s) ** 2)
+    chord = l1 * root + l2 * h
+    dchord = -0.5 * s * l2 * (c * h / root + 1.0)
+    rate = 1.0 - segment.deviation_rate
+    px, pz = chord * s, chord * h
+    dpx, dpz = 0.5 * h * chord + s * dchord, -0.5 * s * chord + h * dchord
+    beta = theta * rate
+    cb, sb = math.cos(beta), math.sin(beta)
+    cp, sp = math.cos(psi), math.sin(psi)
+    vb = 1.0 - cb
+    T = np.array([
+        [1.0 - vb * cp * cp, -vb * sp * cp, sb * cp, cp * px],
+        [-vb * sp * cp, 1.0 - vb * sp * sp, sb * sp, sp * px],
+        [-sb * cp, -sb * sp, cb, pz],
+        [0.0, 0.0, 0.0, 1.0],
+    ])
+    r = rate
+    dT = np.array([
+        [-r * sb * cp * cp, -r * sb * sp * cp, r * cb * cp, cp * dpx],
+        [-r * sb * sp * cp, -r * sb * sp * sp, r * cb * sp, sp * dpx],
+        [-r * cb * cp, -r * cb * sp, -r * sb, dpz],
+        [0.0, 0.0, 0.0, 0.0],
+    ])
+    return T, dT

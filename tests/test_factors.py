@@ -1,0 +1,167 @@
+"""Factors: Jacobians against numbers, zero residual at the truth, convergence from a perturbed
+start, robust weights as gtsam weighs them, priors."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+
+from apcc_graph import Robot, Segment, TipCamera
+from apcc_graph.kinematics import (
+    apcc_transform,
+    apcc_transform_derivative,
+    apcc_transform_scalar,
+)
+from apcc_graph.robot import load_robot
+from apcc_graph.simulate import simulate
+from factors.epipolar import epipolar_factor, epipolar_residual, robust_weights
+from factors.priors import joint_limit_factor, joint_limit_residual, motion_prior
+
+ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
+
+
+def random_pose(rng: np.random.Generator, rot: float, trans: float) -> np.ndarray:
+    return gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * rot),
+                       rng.normal(size=3) * trans).matrix()
+
+
+@pytest.fixture(scope="module")
+def mounted_robot() -> Robot:
+    rng = np.random.default_rng(0)
+    cam = TipCamera(500.0, 500.0, 320.0, 240.0, 640, 480, tip_T_cam=random_pose(rng, 0.2, 0.02))
+    return Robot([Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
+                  Segment(0.3, k=0.3, delta_max=-0.05, theta_max=1.0),
+                  Segment(0.25)], [cam, cam, cam])
+
+
+def test_scalar_kinematics_match_the_vectorised_functions() -> None:
+    seg = Segment(0.4, k=0.3, delta_max=-0.2, theta_max=1.2)
+    for theta, psi in [(0.0, 0.0), (0.7, 0.3), (-1.1, -2.0), (1e-9, 1.0)]:
+        T, dT = apcc_transform_scalar(theta, seg, psi)
+        np.testing.assert_allclose(T, apcc_transform(theta, seg, psi), atol=1e-15)
+        np.testing.assert_allclose(dT, apcc_transform_derivative(theta, seg, psi)[0], atol=1e-15)
+
+
+@pytest.mark.parametrize("cam", [0, 1, 2])
+@pytest.mark.parametrize("moving_base", [False, True])
+def test_epipolar_jacobians_match_central_differences(mounted_robot: Robot, cam: int,
+                                                      moving_base: bool) -> None:
+    sim = simulate(mounted_robot, 12, noise_px=0.5, seed=3 + cam, moving_base=moving_base)
+    seq = sim.sequence
+    a, b = 2, 7
+    corr = seq.correspondences(cam, a, b)
+    assert len(corr) > 20
+    segs = mounted_robot.segments[: cam + 1]
+    mount = mounted_robot.cameras[cam].tip_T_cam
+    base_a = np.eye(4) if seq.world_T_base is None else seq.world_T_base[a]
+    base_b = np.eye(4) if seq.world_T_base is None else seq.world_T_base[b]
+    rng = np.random.default_rng(cam)
+    th_a = list(seq.thetas[a, : cam + 1] + rng.normal(0, 0.02, cam + 1))
+    th_b = list(seq.thetas[b, : cam + 1] + rng.normal(0, 0.02, cam + 1))
+    args = (segs, mount, base_a, base_b, corr.f_a, corr.f_b, 1.0 / 500.0)
+    r, ja, jb = epipolar_residual(th_a, th_b, *args)
+    h = 1e-6
+    for which, jac in (("a", ja), ("b", jb)):
+        for j in range(cam + 1):
+            plus = [list(th_a), list(th_b)]
+            minus = [list(th_a), list(th_b)]
+            idx = 0 if which == "a" else 1
+            plus[idx][j] += h
+            minus[idx][j] -= h
+            num = (epipolar_residual(*plus, *args)[0]
+                   - epipolar_residual(*minus, *args)[0]) / (2 * h)
+            np.testing.assert_allclose(jac[:, j], num, rtol=1e-5, atol=1e-5 * np.abs(num).max())
+    r_only, none_a, none_b = epipolar_residual(th_a, th_b, *args, jacobians=False)
+    np.testing.assert_allclose(r_only, r, atol=1e-12)
+    assert none_a is None and none_b is None
+
+
+def test_zero_residual_at_the_truth() -> None:
+    robot = load_robot(ROBOT)
+    sim = simulate(robot, 10, noise_px=0.0, seed=5, moving_base=True)
+    seq = sim.sequence
+    for cam in range(3):
+        corr = seq.correspondences(cam, 1, 6)
+        r, _, _ = epipolar_residual(seq.thetas[1, : cam + 1], seq.thetas[6, : cam + 1],
+                                    robot.segments[: cam + 1], robot.cameras[cam].tip_T_cam,
+                                    seq.world_T_base[1], seq.world_T_base[6], corr.f_a,
+                                    corr.f_b, 1.0 / 500.0)
+        assert len(r) > 20 and np.max(np.abs(r)) < 1e-8
+
+
+@pytest.mark.parametrize(("loss", "model"), [
+    ("huber", gtsam.noiseModel.mEstimator.Huber.Create(1.345)),
+    ("cauchy", gtsam.noiseModel.mEstimator.Cauchy.Create(1.345)),
+])
+def test_robust_weights_are_gtsams(loss: str, model) -> None:
+    r = np.linspace(-8.0, 8.0, 161)
+    np.testing.assert_allclose(robust_weights(r, loss, 1.345), [model.weight(x) for x in r],
+                               rtol=1e-12)
+    np.testing.assert_array_equal(robust_weights(r, "none", 1.345), np.ones_like(r))
+    with pytest.raises(ValueError, match="robust loss"):
+        robust_weights(r, "tukey", 1.0)
+
+
+def test_factor_in_gtsam_linearises_to_the_weighted_jacobian() -> None:
+    robot = load_robot(ROBOT)
+    sim = simulate(robot, 8, noise_px=1.0, outlier_fraction=0.2, seed=6)
+    seq = sim.sequence
+    corr = seq.correspondences(1, 0, 4)
+    keys_a, keys_b = [0, 1], [10, 11]
+    th_a, th_b = seq.thetas[0, :2] + 0.01, seq.thetas[4, :2] - 0.01
+    args = (robot.segments[:2], robot.cameras[1].tip_T_cam, np.eye(4), np.eye(4), corr.f_a,
+            corr.f_b, 1.0 / 500.0)
+    factor = epipolar_factor(keys_a, keys_b, *args, loss="huber", loss_scale=1.345)
+    values = gtsam.Values()
+    for k, t in zip(keys_a + keys_b, [*th_a, *th_b], strict=True):
+        values.insert(k, np.array([t]))
+    r, ja, jb = epipolar_residual(list(th_a), list(th_b), *args)
+    sw = np.sqrt(robust_weights(r, "huber", 1.345))
+    assert factor.error(values) == pytest.approx(0.5 * np.sum((sw * r) ** 2), rel=1e-12)
+    A, _ = factor.linearize(values).jacobian()
+    np.testing.assert_allclose(A, np.column_stack([ja, jb]) * sw[:, None], rtol=1e-12,
+                               atol=1e-12)
+    # Outliers are down-weighted: the largest residuals get the smallest weights.
+    assert sw[np.argmax(np.abs(r))] < 0.5
+
+
+def test_convergence_from_a_perturbed_start() -> None:
+    robot = load_robot(ROBOT)
+    sim = simulate(robot, 6, noise_px=0.0, seed=7)
+    seq = sim.sequence
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Isotropic.Sigma(1, 1e-6)
+    for i in range(3):  # frame 0 known exactly; frame 5 to be found
+        graph.add(gtsam.PriorFactorVector(i, seq.thetas[0, i:i + 1], noise))
+    for cam in range(3):
+        corr = seq.correspondences(cam, 0, 5)
+        graph.add(epipolar_factor(list(range(cam + 1)), [10 + j for j in range(cam + 1)],
+                                  robot.segments[: cam + 1], robot.cameras[cam].tip_T_cam,
+                                  np.eye(4), np.eye(4), corr.f_a, corr.f_b, 1.0 / 500.0))
+    start = gtsam.Values()
+    for i in range(3):
+        start.insert(i, seq.thetas[0, i:i + 1])
+        start.insert(10 + i, seq.thetas[5, i:i + 1] + math.radians(2.0))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, start).optimize()
+    got = np.array([result.atVector(10 + i)[0] for i in range(3)])
+    np.testing.assert_allclose(got, seq.thetas[5], atol=1e-8)
+
+
+def test_joint_limit_and_motion_priors() -> None:
+    assert joint_limit_residual(0.5, 1.0, 0.1) == (0.0, 0.0)
+    r, d = joint_limit_residual(-1.2, 1.0, 0.1)
+    assert r == pytest.approx(2.0) and d == pytest.approx(-10.0)
+    factor = joint_limit_factor(3, 1.0, 0.1)
+    values = gtsam.Values()
+    values.insert(3, np.array([1.3]))
+    assert factor.error(values) == pytest.approx(0.5 * 3.0**2)
+    A, _ = factor.linearize(values).jacobian()
+    assert A[0, 0] == pytest.approx(10.0)
+    prior = motion_prior(1, 2, sigma_rate=0.5, dt=0.04)
+    values.insert(1, np.array([0.2]))
+    values.insert(2, np.array([0.3]))
+    assert prior.error(values) == pytest.approx(0.5 * (0.1 / (0.5 * math.sqrt(0.04))) ** 2)
