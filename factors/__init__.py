@@ -1,14 +1,14 @@
-"""Custom GTSAM factors for apcc_graph (the back end; filled in by the back-end work).
+"""Custom GTSAM factors for apcc_graph (the back end).
 
-What goes here, one module per factor (see DESIGN.md and STYLE.md 4-6):
+Conventions: the state is the bending angle of each segment at each frame, a Vector1 value
+(radians); its tangent space is the identity, so GTSAM's ``x + dx`` is plain addition. Each
+module holds a pure numpy residual with analytic Jacobians and a thin constructor returning a
+gtsam factor (STYLE.md 4-6); this package imports only apcc_graph's maths modules (kinematics,
+geometry, segment), never the estimators.
 
-- the APCC kinematic factor tying a segment's base pose, its angle and its tip pose;
-- the generalized epipolar factor: Sampson-type residuals of all correspondences of one tip
-  camera between two frames, with a robust loss per correspondence;
-- priors: robot base, motion between consecutive angles, soft joint limits, calibration variables.
-
-Each module holds a pure numpy ``*_residual`` function returning the residual and its analytic
-Jacobians (GTSAM's right-hand convention ``x * Exp(dx)``), and a thin constructor that wraps it in
-``gtsam.CustomFactor``. This package imports only apcc_graph's maths modules (kinematics, robot,
-geometry), never the estimators.
+- :mod:`factors.epipolar`: the generalized epipolar factor of one tip camera between two frames,
+  in joint space (the APCC chain inside the residual), Sampson residuals whitened by the pixel
+  noise, a robust loss per correspondence.
+- :mod:`factors.priors`: absolute angle prior, random-walk motion prior (both gtsam C++
+  factors), soft joint limits.
 """
