@@ -24,6 +24,11 @@ _EXPORTS = {
     "apcc_transform": "apcc_graph.kinematics",
     "calibrate_from_tip": "apcc_graph.calibration",
     "fit_segment": "apcc_graph.calibration",
+    "estimate": "apcc_graph.api",
+    "Estimate": "apcc_graph.estimation.result",
+    "Sequence": "apcc_graph.sequence",
+    "load_sequence": "apcc_graph.io",
+    "save_sequence": "apcc_graph.io",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]

@@ -19,6 +19,9 @@ import numpy as np
 from apcc_graph import __version__
 
 _EXAMPLES = {
+    "estimate": "example:\n  apcc-graph estimate data/sequences/planar_three --method batch "
+    "--out /tmp/est --theta0-deg 20.5,-15.2,21.3",
+    "evaluate": "example:\n  apcc-graph evaluate /tmp/est --truth data/sequences/planar_three",
     "simulate": "example:\n  apcc-graph simulate --robot data/robots/planar_three.toml "
     "--frames 300 --out /tmp/seq --noise-px 1 --outliers 0.1 --seed 1",
     "calibrate": "example:\n  apcc-graph calibrate data/calibration/paper_example.toml",
@@ -120,6 +123,65 @@ def _run_simulate(args: argparse.Namespace) -> str:
         lines.append(f"  cam_{cam + 1}: {len(seq.tracks[cam])} observations, "
                      f"{per_frame.mean():.0f} tracks per frame (min {per_frame.min()}), "
                      f"{int(sim.outliers[cam].sum())} outliers")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------- estimate / evaluate
+def _theta0(text: str | None, n_segments: int) -> np.ndarray | None:
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise UserError(f"--theta0-deg {text!r}: expected comma-separated degrees") from None
+    if len(values) != n_segments or not all(math.isfinite(v) for v in values):
+        raise UserError(f"--theta0-deg {text!r}: expected {n_segments} finite angles in degrees "
+                        "(one per segment)")
+    return np.radians(values)
+
+
+def _run_estimate(args: argparse.Namespace) -> str:
+    from apcc_graph.api import estimate
+    from apcc_graph.estimate_io import save_estimate
+    from apcc_graph.io import load_sequence
+
+    sequence = load_sequence(args.sequence)
+    theta0 = _theta0(args.theta0_deg, sequence.n_segments)
+    options = {"progress": True}
+    result = estimate(sequence, method=args.method, theta0=theta0, **options)
+    written = save_estimate(result, args.out)
+    lines = [f"{args.method}: {result.n_frames} frames, {sequence.n_segments} segments -> "
+             f"{args.out} ({', '.join(p.name for p in written)})"]
+    if sequence.thetas is not None:  # evaluation only: the estimator never read these
+        rms = np.degrees(result.rms(sequence.thetas))
+        lines.append("RMS error vs the sequence's ground truth: "
+                     + ", ".join(f"segment {i + 1} {v:.3f} deg" for i, v in enumerate(rms)))
+    return "\n".join(lines)
+
+
+def _run_evaluate(args: argparse.Namespace) -> str:
+    from apcc_graph.estimate_io import load_theta_csv
+    from apcc_graph.evaluation import compare
+    from apcc_graph.io import load_sequence
+
+    _, thetas, _ = load_theta_csv(Path(args.estimate) / "theta.csv")
+    truth_seq = load_sequence(args.truth)
+    if truth_seq.thetas is None:
+        raise UserError(f"{args.truth}: frames.csv has no ground-truth theta columns")
+    if truth_seq.thetas.shape != thetas.shape:
+        raise UserError(f"{args.estimate}: {thetas.shape[0]} frames x {thetas.shape[1]} segments,"
+                        f" but {args.truth} has {truth_seq.thetas.shape[0]} x "
+                        f"{truth_seq.thetas.shape[1]}")
+    report = compare(thetas, truth_seq.thetas, window=args.window)
+    n_seg = thetas.shape[1]
+    lines = [f"{'':<16}" + "".join(f"{f'segment {i + 1}':>12}" for i in range(n_seg)),
+             f"{'RMS (deg)':<16}" + "".join(f"{v:>12.4f}" for v in np.degrees(report.rms)),
+             f"{'max |err| (deg)':<16}" + "".join(f"{v:>12.4f}"
+                                                  for v in np.degrees(report.max_abs)),
+             f"RMS per window of {report.window} frames (deg):"]
+    for start, row in zip(report.window_starts, report.window_rms, strict=True):
+        lines.append(f"  frames {start:>6}-{min(start + report.window, thetas.shape[0]) - 1:<6}"
+                     + "".join(f"{v:>12.4f}" for v in np.degrees(row)))
     return "\n".join(lines)
 
 
@@ -317,6 +379,31 @@ def build_parser() -> argparse.ArgumentParser:
                       help="round pixels to this many decimals (default: full precision)")
     simp.add_argument("--force", action="store_true", help="write into a non-empty --out")
     simp.set_defaults(run=_run_simulate)
+
+    est = sub.add_parser(
+        "estimate", help="estimate every frame's segment angles of a sequence folder",
+        description="Estimate the bending angles of a sequence and write theta.csv and one "
+        "TUM trajectory per segment tip (tips_seg_<i>.tum) into --out.",
+        epilog=_EXAMPLES["estimate"], formatter_class=fmt,
+    )
+    est.add_argument("sequence", help="sequence folder")
+    est.add_argument("--method", choices=("chain", "batch"), default="batch")
+    est.add_argument("--out", required=True, help="output folder")
+    est.add_argument("--theta0-deg", default=None,
+                     help="starting configuration, degrees, one per segment (default straight);"
+                     " write --theta0-deg=-10,5,3 when the first angle is negative")
+    est.set_defaults(run=_run_estimate)
+
+    ev = sub.add_parser(
+        "evaluate", help="compare an estimate with a sequence's ground truth",
+        description="RMS and max error per segment, overall and per window of frames (so "
+        "drift shows).",
+        epilog=_EXAMPLES["evaluate"], formatter_class=fmt,
+    )
+    ev.add_argument("estimate", help="folder with theta.csv (the --out of estimate)")
+    ev.add_argument("--truth", required=True, help="sequence folder with ground truth")
+    ev.add_argument("--window", type=_at_least(1), default=100, help="frames per window")
+    ev.set_defaults(run=_run_evaluate)
 
     bench = sub.add_parser("bench", help="benchmarks against named peers (figures, not tests)")
     bench_sub = bench.add_subparsers(dest="bench", metavar="BENCHMARK", required=True)

@@ -62,6 +62,7 @@ def build_graph(
     theta0_sigma: float = math.radians(1.0),
     limit_sigma: float = math.radians(1.0),
     loss: str = "huber",
+    min_baseline: float = 0.002,
 ) -> gtsam.NonlinearFactorGraph:
     """The factor graph of frames ``frames`` (default all); see the module docstring."""
     robot = sequence.robot
@@ -91,7 +92,8 @@ def build_graph(
                 corr = sequence.correspondences(i, a, b)
                 if len(corr) < min_shared:
                     continue
-                keep = _gate(sequence, initial, i, a, b, corr.f_a, corr.f_b, gate_px / camera.fx)
+                keep = _gate(sequence, initial, i, a, b, corr.f_a, corr.f_b, gate_px / camera.fx,
+                             min_baseline)
                 if keep.sum() < min_shared:
                     continue
                 graph.add(epipolar_factor(
@@ -103,8 +105,13 @@ def build_graph(
 
 
 def _gate(sequence: Sequence, initial: np.ndarray, cam: int, a: int, b: int,
-          f_a: np.ndarray, f_b: np.ndarray, gate: float) -> np.ndarray:
-    """Correspondences whose Sampson error at the initial estimate is under ``gate`` radians."""
+          f_a: np.ndarray, f_b: np.ndarray, gate: float, min_baseline: float) -> np.ndarray:
+    """Correspondences whose Sampson error at the initial estimate is under ``gate`` radians.
+
+    None when the camera moved less than ``min_baseline`` metres between the frames: near zero
+    motion the Sampson error is the ratio of two vanishing quantities, its slope grows like
+    1 / |t| and the pair carries no parallax information (the motion prior carries it).
+    """
     robot = sequence.robot
     # The segment's base motion from the initial angles of the segments below it.
     base_a, base_b = _world_T_base(sequence, a), _world_T_base(sequence, b)
@@ -115,6 +122,8 @@ def _gate(sequence: Sequence, initial: np.ndarray, cam: int, a: int, b: int,
     view = SegmentTwoView.build(initial[a, cam], robot.segments[cam],
                                 robot.cameras[cam].tip_T_cam,
                                 np.linalg.inv(seg_base_a) @ seg_base_b)
+    if np.linalg.norm(view.relative_pose(initial[b, cam])[:3, 3]) < min_baseline:
+        return np.zeros(len(f_a), dtype=bool)
     e, de = epipolar_errors(f_a, f_b, view, initial[b, cam], derivative=True)
     # Near the epipole the Sampson error's denominator vanishes and its slope explodes: such a
     # correspondence carries no parallax information, only ill-conditioning. Leave it out.

@@ -1,0 +1,88 @@
+"""Estimates on disk: ``theta.csv`` and one TUM trajectory per segment tip (DESIGN.md "Files").
+
+- ``theta.csv``: ``frame,timestamp,theta_1..theta_S,sigma_1..sigma_S`` (radians; a sigma is
+  written as ``nan`` where the method gives none);
+- ``tips_seg_<i>.tum``: ``timestamp tx ty tz qx qy qz qw`` per frame, the pose of segment i's tip
+  in the world frame (metres; Hamilton quaternion, scalar last as TUM and evo expect).
+
+Files are written atomically (temporary file, then rename).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from apcc_graph.atomic_write import atomic_write_text
+from apcc_graph.csv_table import format_number, read_header, read_table
+from apcc_graph.estimation.result import Estimate
+
+
+def theta_columns(n_segments: int) -> list[str]:
+    """The header of ``theta.csv``."""
+    return (["frame", "timestamp"] + [f"theta_{i}" for i in range(1, n_segments + 1)]
+            + [f"sigma_{i}" for i in range(1, n_segments + 1)])
+
+
+def theta_csv(estimate: Estimate) -> str:
+    """The text of ``theta.csv``."""
+    n_seg = estimate.thetas.shape[1]
+    lines = [",".join(theta_columns(n_seg))]
+    for f in range(estimate.n_frames):
+        fields = [str(f), format_number(estimate.timestamps[f])]
+        fields += [format_number(v) for v in estimate.thetas[f].tolist()]
+        fields += [format_number(v) for v in estimate.sigmas[f].tolist()]
+        lines.append(",".join(fields))
+    return "\n".join(lines) + "\n"
+
+
+def tum_text(timestamps: np.ndarray, world_T_tip: np.ndarray) -> str:
+    """TUM lines ``timestamp tx ty tz qx qy qz qw`` for ``(F, 4, 4)`` poses."""
+    lines = []
+    for t, pose in zip(timestamps.tolist(), world_T_tip, strict=True):
+        q = gtsam.Rot3(pose[:3, :3]).toQuaternion()
+        x, y, z = pose[:3, 3].tolist()
+        lines.append(" ".join(repr(float(v)) for v in (t, x, y, z, q.x(), q.y(), q.z(), q.w())))
+    return "\n".join(lines) + "\n"
+
+
+def save_estimate(estimate: Estimate, folder: str | Path) -> list[Path]:
+    """Write ``theta.csv`` and ``tips_seg_<i>.tum`` into ``folder``; returns the files written."""
+    folder = Path(folder)
+    written = [folder / "theta.csv"]
+    atomic_write_text(written[0], theta_csv(estimate))
+    tips = estimate.world_T_tip()
+    for i in range(estimate.thetas.shape[1]):
+        path = folder / f"tips_seg_{i + 1}.tum"
+        atomic_write_text(path, tum_text(estimate.timestamps, tips[:, i]))
+        written.append(path)
+    return written
+
+
+def load_theta_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read ``theta.csv``: ``(timestamps (F,), thetas (F, S), sigmas (F, S))``.
+
+    Raises:
+        ValueError: bad header or values; the message names the file and the line.
+    """
+    path = Path(path)
+    names = read_header(path)
+    n_seg = sum(1 for n in names if n.startswith("theta_"))
+    if n_seg == 0:
+        raise ValueError(f"{path}: line 1: expected columns {','.join(theta_columns(1))}...")
+    table = read_table(path, theta_columns(n_seg))
+    if len(table) == 0:
+        raise ValueError(f"{path}: no frames")
+    frames = table.integers("frame")
+    wrong = np.flatnonzero(frames != np.arange(len(frames)))
+    if len(wrong):
+        row = int(wrong[0])
+        raise table.error(row, "frame", f"expected frame {row}, got {int(frames[row])}")
+    values = table.values
+    thetas = values[:, 2:2 + n_seg]
+    if not np.all(np.isfinite(thetas)):
+        row, col = np.argwhere(~np.isfinite(thetas))[0]
+        raise table.error(int(row), f"theta_{col + 1}", "expected a finite angle (radians)")
+    return values[:, 1].copy(), thetas.copy(), values[:, 2 + n_seg:].copy()
