@@ -374,10 +374,17 @@ def refine_theta(
     Iteratively reweighted least squares; 1-D, so each step is a ratio of sums and cheaper than a
     general solver call inside RANSAC's inner loop.
     """
+    return _huber_gauss_newton(
+        lambda t: epipolar_errors(f_a, f_b, view, t, derivative=True),
+        theta_b, view.segment.theta_max, threshold, iterations)
+
+
+def _huber_gauss_newton(errors, theta_b: float, lim: float, threshold: float,  # noqa: ANN001
+                        iterations: int) -> float:
+    """IRLS on a 1-D robust least squares: ``errors(theta) -> (e, de/dtheta)``, Huber weights."""
     theta = float(theta_b)
-    lim = view.segment.theta_max
     for _ in range(iterations):
-        e, de = epipolar_errors(f_a, f_b, view, theta, derivative=True)
+        e, de = errors(theta)
         r = np.abs(e)
         weight = np.where(r <= threshold, 1.0, threshold / np.maximum(r, 1e-300))
         hess = float(np.sum(weight * de * de))
@@ -393,21 +400,13 @@ def refine_theta(
 def _refine_with_basis(basis: EpipolarBasis, mask: NDArray[np.bool_], theta_b: float,
                        threshold: float, iterations: int = 5) -> float:
     """:func:`refine_theta` on the rows in ``mask``, with errors from the basis expansion."""
-    theta = float(theta_b)
-    lim = basis.view.segment.theta_max
-    for _ in range(iterations):
+
+    def errors(theta: float) -> tuple[FloatArray, FloatArray]:
         e, de = basis.errors(theta, derivative=True)
-        e, de = e[0, mask], de[0, mask]
-        r = np.abs(e)
-        weight = np.where(r <= threshold, 1.0, threshold / np.maximum(r, 1e-300))
-        hess = float(np.sum(weight * de * de))
-        if hess <= 0.0:
-            break
-        delta = float(np.sum(weight * de * e)) / hess
-        theta = min(max(theta - delta, -lim), lim)
-        if abs(delta) < 1e-9:
-            break
-    return theta
+        return e[0, mask], de[0, mask]
+
+    return _huber_gauss_newton(errors, theta_b, basis.view.segment.theta_max, threshold,
+                               iterations)
 
 
 def one_point_ransac(

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apcc_graph.estimation.batch import batch_estimate
+from apcc_graph.estimation.batch import GraphOptions, batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.robot import load_robot
 from apcc_graph.simulate import simulate_sequence
@@ -17,8 +17,8 @@ ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 
 def test_noise_free_sequence_returns_the_truth() -> None:
     seq = simulate_sequence(load_robot(ROBOT), 12, noise_px=0.0, seed=4, moving_base=True)
-    est = batch_estimate(seq, theta0=seq.thetas[0], motion_sigma=None, theta0_sigma=1e-6,
-                         marginals=False)
+    options = GraphOptions(motion_sigma=None, theta0_sigma=1e-6)
+    est = batch_estimate(seq, theta0=seq.thetas[0], options=options, marginals=False)
     np.testing.assert_allclose(est.thetas, seq.thetas, atol=1e-6)
     assert est.method == "batch" and est.thetas.shape == (12, 3)
 
@@ -34,6 +34,7 @@ def test_batch_beats_the_chain_and_reports_uncertainty() -> None:
 
 
 def test_bad_loss_is_refused() -> None:
-    seq = simulate_sequence(load_robot(ROBOT), 4, noise_px=0.0, seed=1)
     with pytest.raises(ValueError, match="robust loss"):
-        batch_estimate(seq, loss="tukey", marginals=False)
+        GraphOptions(loss="tukey")
+    with pytest.raises(ValueError, match="gaps"):
+        GraphOptions(gaps=(0, 1))

@@ -23,6 +23,7 @@ deviations come from ``gtsam.Marginals``.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -32,12 +33,46 @@ from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.geometry import SegmentTwoView, epipolar_errors
 from apcc_graph.sequence import Sequence
-from factors.epipolar import epipolar_factor
+from factors.epipolar import ROBUST_LOSSES, epipolar_factor
 from factors.priors import angle_prior, joint_limit_factor, motion_prior
 
 DEFAULT_GAPS = (1, 2, 5, 10, 20)
 _SLOPE_OUTLIER = 100.0
 """A correspondence whose Sampson slope exceeds this multiple of the median is ill-posed."""
+
+
+@dataclass(frozen=True)
+class GraphOptions:
+    """How the factor graph is built (shared by the batch optimiser and the smoother).
+
+    Attributes:
+        gaps: frame gaps between which epipolar factors are built.
+        min_shared: fewest shared (and gated) tracks for a factor.
+        threshold_px: pixel noise scale of the epipolar residuals (sigma, pixels).
+        gate_px: correspondences with a larger Sampson error at the current estimate are left
+            out (pixels).
+        motion_sigma: random-walk prior strength (rad/sqrt(s)); ``None``: no motion prior.
+        theta0_sigma: prior standard deviation of the starting configuration (radians).
+        limit_sigma: softness of the joint limits (radians).
+        loss: robust loss per correspondence (``"huber"``, ``"cauchy"``, ``"none"``).
+        min_baseline: pairs whose camera moved less (metres) are left out (no parallax).
+    """
+
+    gaps: tuple[int, ...] = DEFAULT_GAPS
+    min_shared: int = 15
+    threshold_px: float = 1.0
+    gate_px: float = 5.0
+    motion_sigma: float | None = 0.5
+    theta0_sigma: float = math.radians(1.0)
+    limit_sigma: float = math.radians(1.0)
+    loss: str = "huber"
+    min_baseline: float = 0.002
+
+    def __post_init__(self) -> None:
+        if self.loss not in ROBUST_LOSSES:
+            raise ValueError(f"robust loss {self.loss!r}: expected one of {ROBUST_LOSSES}")
+        if not self.gaps or min(self.gaps) < 1:
+            raise ValueError(f"gaps = {self.gaps!r}: expected positive frame gaps")
 
 
 def angle_key(frame: int, segment: int, n_segments: int) -> int:
@@ -53,54 +88,47 @@ def build_graph(
     sequence: Sequence,
     initial: np.ndarray,
     theta0: np.ndarray,
+    options: GraphOptions,
     frames: range | None = None,
-    gaps: tuple[int, ...] = DEFAULT_GAPS,
-    min_shared: int = 15,
-    threshold_px: float = 1.0,
-    gate_px: float = 5.0,
-    motion_sigma: float | None = 0.5,
-    theta0_sigma: float = math.radians(1.0),
-    limit_sigma: float = math.radians(1.0),
-    loss: str = "huber",
-    min_baseline: float = 0.002,
 ) -> gtsam.NonlinearFactorGraph:
     """The factor graph of frames ``frames`` (default all); see the module docstring."""
+    o = options
     robot = sequence.robot
     n_seg = robot.n_segments
     frames = range(sequence.n_frames) if frames is None else frames
     graph = gtsam.NonlinearFactorGraph()
     first = frames.start
     for i in range(n_seg):
-        graph.add(angle_prior(angle_key(first, i, n_seg), theta0[i], theta0_sigma))
+        graph.add(angle_prior(angle_key(first, i, n_seg), theta0[i], o.theta0_sigma))
     for f in frames:
         for i, seg in enumerate(robot.segments):
-            graph.add(joint_limit_factor(angle_key(f, i, n_seg), seg.theta_max, limit_sigma))
-            if motion_sigma is not None and f > first:
+            graph.add(joint_limit_factor(angle_key(f, i, n_seg), seg.theta_max, o.limit_sigma))
+            if o.motion_sigma is not None and f > first:
                 dt = float(sequence.timestamps[f] - sequence.timestamps[f - 1])
                 graph.add(motion_prior(angle_key(f - 1, i, n_seg), angle_key(f, i, n_seg),
-                                       motion_sigma, dt))
+                                       o.motion_sigma, dt))
     for i in robot.camera_segments:
         camera = robot.cameras[i]
         assert camera is not None
-        sigma = threshold_px / camera.fx
+        sigma = o.threshold_px / camera.fx
         segs = robot.segments[: i + 1]
         for b in frames:
-            for gap in gaps:
+            for gap in o.gaps:
                 a = b - gap
                 if a < first:
                     continue
                 corr = sequence.correspondences(i, a, b)
-                if len(corr) < min_shared:
+                if len(corr) < o.min_shared:
                     continue
-                keep = _gate(sequence, initial, i, a, b, corr.f_a, corr.f_b, gate_px / camera.fx,
-                             min_baseline)
-                if keep.sum() < min_shared:
+                keep = _gate(sequence, initial, i, a, b, corr.f_a, corr.f_b,
+                             o.gate_px / camera.fx, o.min_baseline)
+                if keep.sum() < o.min_shared:
                     continue
                 graph.add(epipolar_factor(
                     [angle_key(a, j, n_seg) for j in range(i + 1)],
                     [angle_key(b, j, n_seg) for j in range(i + 1)],
                     segs, camera.tip_T_cam, _world_T_base(sequence, a),
-                    _world_T_base(sequence, b), corr.f_a[keep], corr.f_b[keep], sigma, loss))
+                    _world_T_base(sequence, b), corr.f_a[keep], corr.f_b[keep], sigma, o.loss))
     return graph
 
 
@@ -186,13 +214,7 @@ def batch_estimate(
     sequence: Sequence,
     theta0: ArrayLike | None = None,
     initial: ArrayLike | None = None,
-    gaps: tuple[int, ...] = DEFAULT_GAPS,
-    min_shared: int = 15,
-    threshold_px: float = 1.0,
-    gate_px: float = 5.0,
-    motion_sigma: float | None = 0.5,
-    theta0_sigma: float = math.radians(1.0),
-    loss: str = "huber",
+    options: GraphOptions | None = None,
     max_iterations: int = 20,
     max_rounds: int = 6,
     round_tolerance: float = math.radians(0.01),
@@ -205,14 +227,7 @@ def batch_estimate(
         sequence: the sequence (ground truth, if any, is never read).
         theta0: ``(S,)`` starting configuration (radians; default straight).
         initial: ``(F, S)`` initial angles; default the chain estimate.
-        gaps: frame gaps between which epipolar factors are built.
-        min_shared: fewest shared tracks for a factor.
-        threshold_px: pixel noise scale of the epipolar factors (sigma in pixels).
-        gate_px: correspondences with a larger Sampson error at the initial estimate are left
-            out (pixels).
-        motion_sigma: random-walk prior strength (rad/sqrt(s)); ``None``: no motion prior.
-        theta0_sigma: prior standard deviation of the starting configuration (radians).
-        loss: robust loss per correspondence (``"huber"``, ``"cauchy"``, ``"none"``).
+        options: how the graph is built (:class:`GraphOptions`).
         max_iterations: Levenberg-Marquardt iterations per round.
         max_rounds: re-gating rounds with every gap (each starts from the previous solution
             and re-selects the correspondences at it), until the angles move less than
@@ -224,10 +239,11 @@ def batch_estimate(
     Returns:
         The estimate, ``method = "batch"``.
     """
+    options = GraphOptions() if options is None else options
     n_seg = sequence.n_segments
     theta0 = np.zeros(n_seg) if theta0 is None else np.asarray(theta0, dtype=float)
     if initial is None:
-        chain = chain_estimate(sequence, theta0=theta0, threshold_px=threshold_px,
+        chain = chain_estimate(sequence, theta0=theta0, threshold_px=options.threshold_px,
                                progress=progress)
         initial, status = chain.thetas, chain.status
     else:
@@ -236,16 +252,12 @@ def batch_estimate(
     # Rounds: short baselines first (gated at the chain's estimate), then every gap, re-gated
     # at the previous round's solution; long baselines only enter once the estimate is good
     # enough to tell their inliers from outliers.
-    short = tuple(g for g in gaps if g <= 2) or gaps[:1]
+    short = tuple(g for g in options.gaps if g <= 2) or options.gaps[:1]
     thetas = initial
-    graph = build_graph(sequence, thetas, theta0, gaps=short, min_shared=min_shared,
-                        threshold_px=threshold_px, gate_px=gate_px, motion_sigma=motion_sigma,
-                        theta0_sigma=theta0_sigma, loss=loss)
+    graph = build_graph(sequence, thetas, theta0, replace(options, gaps=short))
     thetas = _optimise(graph, thetas, max_iterations)
     for _ in range(max_rounds):
-        graph = build_graph(sequence, thetas, theta0, gaps=gaps, min_shared=min_shared,
-                            threshold_px=threshold_px, gate_px=gate_px,
-                            motion_sigma=motion_sigma, theta0_sigma=theta0_sigma, loss=loss)
+        graph = build_graph(sequence, thetas, theta0, options)
         previous, thetas = thetas, _optimise(graph, thetas, max_iterations)
         if np.max(np.abs(thetas - previous)) < round_tolerance:
             break
