@@ -9,6 +9,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 import pytest
+from helpers import random_pose
 
 from apcc_graph import Robot, Segment, TipCamera
 from apcc_graph.kinematics import (
@@ -24,9 +25,6 @@ from factors.priors import joint_limit_factor, joint_limit_residual, motion_prio
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 
 
-def random_pose(rng: np.random.Generator, rot: float, trans: float) -> np.ndarray:
-    return gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * rot),
-                       rng.normal(size=3) * trans).matrix()
 
 
 @pytest.fixture(scope="module")

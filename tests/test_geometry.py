@@ -7,6 +7,7 @@ import math
 import gtsam
 import numpy as np
 import pytest
+from helpers import random_pose
 
 from apcc_graph.camera import TipCamera
 from apcc_graph.geometry import (
@@ -25,10 +26,6 @@ FOCAL = 500.0
 
 
 # ------------------------------------------------------------------------------------ helpers
-def random_pose(rng: np.random.Generator, rot: float, trans: float) -> np.ndarray:
-    """A random 4x4 pose: rotation vector ~ N(0, rot) rad, translation ~ N(0, trans) m."""
-    rotation = gtsam.Rot3.Expmap(rng.normal(0.0, rot, 3))
-    return gtsam.Pose3(rotation, rng.normal(0.0, trans, 3)).matrix()
 
 
 def random_segment(rng: np.random.Generator) -> Segment:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import functools
 import math
 
-import gtsam
 import numpy as np
 import pytest
+from helpers import random_pose
 
 from apcc_graph.geometry import (
     SegmentTwoView,
@@ -23,9 +23,6 @@ HALF_FOV = (0.64, 0.48)  # tan of the half field of view of a 640x480, f = 500 c
 
 
 # ------------------------------------------------------------------------------------ helpers
-def random_pose(rng: np.random.Generator, rot: float, trans: float) -> np.ndarray:
-    rotation = gtsam.Rot3.Expmap(rng.normal(0.0, rot, 3))
-    return gtsam.Pose3(rotation, rng.normal(0.0, trans, 3)).matrix()
 
 
 def random_segment(rng: np.random.Generator, k: float | None = None) -> Segment:
