@@ -9,8 +9,8 @@ from numpy.typing import ArrayLike
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.sequence import Sequence
 
-METHODS = ("chain", "batch")
-"""Estimators available (the fixed-lag smoother joins when it lands)."""
+METHODS = ("chain", "batch", "smoother")
+"""Estimators available."""
 
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
@@ -19,11 +19,12 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
 
     Args:
         sequence: the sequence; ground-truth columns are never read.
-        method: ``"chain"`` (the paper's front end) or ``"batch"`` (factor graph, whole
-            sequence).
+        method: ``"chain"`` (the paper's front end), ``"batch"`` (factor graph, whole
+            sequence) or ``"smoother"`` (fixed-lag smoother, frame by frame).
         theta0: ``(S,)`` starting configuration in radians (default straight).
-        **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`
-            or :func:`~apcc_graph.estimation.batch.batch_estimate`).
+        **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
+            :func:`~apcc_graph.estimation.batch.batch_estimate` or
+            :func:`~apcc_graph.estimation.smoother.smoother_estimate`).
 
     Raises:
         ValueError: an unknown method.
@@ -36,4 +37,8 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         from apcc_graph.estimation.batch import batch_estimate
 
         return batch_estimate(sequence, theta0=theta0, **options)
+    if method == "smoother":
+        from apcc_graph.estimation.smoother import smoother_estimate
+
+        return smoother_estimate(sequence, theta0=theta0, **options)
     raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")

@@ -140,6 +140,9 @@ def _theta0(text: str | None, n_segments: int) -> np.ndarray | None:
     return np.radians(values)
 
 
+DEFAULT_LAG = 1.0
+
+
 def _run_estimate(args: argparse.Namespace) -> str:
     from apcc_graph.api import estimate
     from apcc_graph.estimate_io import save_estimate
@@ -147,7 +150,13 @@ def _run_estimate(args: argparse.Namespace) -> str:
 
     sequence = load_sequence(args.sequence)
     theta0 = _theta0(args.theta0_deg, sequence.n_segments)
-    options = {"progress": True}
+    options: dict = {"progress": True}
+    if args.method == "smoother":
+        if not (args.lag > 0.0 and math.isfinite(args.lag)):
+            raise UserError(f"--lag {args.lag!r}: expected a positive number of seconds")
+        options["lag"] = args.lag
+    elif args.lag is not None and args.lag != DEFAULT_LAG:
+        raise UserError("--lag applies to --method smoother only")
     result = estimate(sequence, method=args.method, theta0=theta0, **options)
     written = save_estimate(result, args.out)
     lines = [f"{args.method}: {result.n_frames} frames, {sequence.n_segments} segments -> "
@@ -387,7 +396,12 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_EXAMPLES["estimate"], formatter_class=fmt,
     )
     est.add_argument("sequence", help="sequence folder")
-    est.add_argument("--method", choices=("chain", "batch"), default="batch")
+    est.add_argument("--method", choices=("chain", "batch", "smoother"), default="batch",
+                     help="chain: the paper's frame-by-frame method; batch: the whole sequence "
+                     "in one factor graph; smoother: fixed-lag smoother, frame by frame "
+                     "(default: %(default)s)")
+    est.add_argument("--lag", type=float, default=DEFAULT_LAG,
+                     help="smoother window in seconds (default: %(default)s)")
     est.add_argument("--out", required=True, help="output folder")
     est.add_argument("--theta0-deg", default=None,
                      help="starting configuration, degrees, one per segment (default straight);"

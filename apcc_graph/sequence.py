@@ -107,6 +107,25 @@ class Correspondences:
         return len(self.track_ids)
 
 
+@dataclass(frozen=True)
+class FrameObservations:
+    """What the tip cameras saw in one frame: the input of the streaming smoother.
+
+    Attributes:
+        timestamp: seconds (strictly increasing from frame to frame).
+        tracks: camera (0-based segment index) -> ``(track_ids (n,), uv (n, 2))``, pixels as in
+            OpenCV; a camera missing here saw nothing in this frame.
+        world_T_base: ``(4, 4)`` robot base pose, or ``None`` for a fixed base at the origin.
+        bearings: optional camera -> ``(n, 3)`` unit bearings of those pixels (rows as in
+            ``tracks``); computed from the camera model when absent.
+    """
+
+    timestamp: float
+    tracks: Mapping[int, tuple[IntArray, FloatArray]]
+    world_T_base: FloatArray | None = None
+    bearings: Mapping[int, FloatArray] | None = None
+
+
 class Sequence:
     """A recorded or simulated sequence (see the module docstring for conventions).
 
@@ -259,6 +278,22 @@ class Sequence:
             return np.zeros(0, np.int64), np.zeros((0, 2))
         trk = self.tracks[cam]
         return trk.track_ids[rows], trk.uv[rows]
+
+    def frame(self, frame: int) -> FrameObservations:
+        """Frame ``frame``'s observations, as a streaming estimator receives them.
+
+        Ground truth is not part of it. Bearings come from the per-camera cache.
+        """
+        tracks: dict[int, tuple[IntArray, FloatArray]] = {}
+        bearings: dict[int, FloatArray] = {}
+        for cam in self.tracks:
+            rows = self._rows(cam, frame)
+            if rows.stop > rows.start:
+                trk = self.tracks[cam]
+                tracks[cam] = (trk.track_ids[rows], trk.uv[rows])
+                bearings[cam] = self.bearings(cam)[rows]
+        base = None if self.world_T_base is None else self.world_T_base[frame]
+        return FrameObservations(float(self.timestamps[frame]), tracks, base, bearings)
 
     def correspondences(self, cam: int, a: int, b: int) -> Correspondences:
         """The tracks camera ``cam`` saw in both frames a and b, as pixels and bearings."""

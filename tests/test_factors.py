@@ -19,7 +19,13 @@ from apcc_graph.kinematics import (
 )
 from apcc_graph.robot import load_robot
 from apcc_graph.simulate import simulate
-from factors.epipolar import epipolar_factor, epipolar_residual, robust_weights
+from factors.epipolar import (
+    epipolar_factor,
+    epipolar_frame_factor,
+    epipolar_frame_residual,
+    epipolar_residual,
+    robust_weights,
+)
 from factors.priors import joint_limit_factor, joint_limit_residual, motion_prior
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
@@ -113,7 +119,8 @@ def test_factor_in_gtsam_linearises_to_the_weighted_jacobian() -> None:
     th_a, th_b = seq.thetas[0, :2] + 0.01, seq.thetas[4, :2] - 0.01
     args = (robot.segments[:2], robot.cameras[1].tip_T_cam, np.eye(4), np.eye(4), corr.f_a,
             corr.f_b, 1.0 / 500.0)
-    factor = epipolar_factor(keys_a, keys_b, *args, loss="huber", loss_scale=1.345)
+    factor = epipolar_factor(keys_a, keys_b, *args, loss="huber", loss_scale=1.345,
+                             compress=False)
     values = gtsam.Values()
     for k, t in zip(keys_a + keys_b, [*th_a, *th_b], strict=True):
         values.insert(k, np.array([t]))
@@ -163,3 +170,138 @@ def test_joint_limit_and_motion_priors() -> None:
     values.insert(1, np.array([0.2]))
     values.insert(2, np.array([0.3]))
     assert prior.error(values) == pytest.approx(0.5 * (0.1 / (0.5 * math.sqrt(0.04))) ** 2)
+
+
+# ---------------------------------------------------------------- one camera, several pairs
+def _frame_setup(robot: Robot, cam: int, seed: int, moving_base: bool = False):
+    sim = simulate(robot, 14, noise_px=1.0, outlier_fraction=0.1, seed=seed,
+                   moving_base=moving_base)
+    seq = sim.sequence
+    b, gaps = 12, (1, 4, 9)
+    corr = [seq.correspondences(cam, b - g, b) for g in gaps]
+    assert all(len(c) > 20 for c in corr)
+    base = (lambda f: np.eye(4)) if seq.world_T_base is None else (lambda f: seq.world_T_base[f])
+    args = dict(segments=robot.segments[: cam + 1], tip_T_cam=robot.cameras[cam].tip_T_cam,
+                world_T_base_b=base(b), world_T_base_a=[base(b - g) for g in gaps],
+                f_a=[c.f_a for c in corr], f_b=[c.f_b for c in corr])
+    return seq, b, gaps, args
+
+
+@pytest.mark.parametrize("cam", [0, 2])
+@pytest.mark.parametrize("moving_base", [False, True])
+def test_frame_residual_stacks_the_pair_residuals(mounted_robot: Robot, cam: int,
+                                                  moving_base: bool) -> None:
+    seq, b, gaps, args = _frame_setup(mounted_robot, cam, 11 + cam, moving_base)
+    n = cam + 1
+    th_b = seq.thetas[b, :n] + 0.003
+    th_a = [seq.thetas[b - g, :n] - 0.002 * g for g in gaps]
+    res = epipolar_frame_residual(th_b, th_a, sigma=[1e-3, 2e-3, 3e-3], **args)
+    for p, _g in enumerate(gaps):
+        r, ja, jb = epipolar_residual(th_a[p], th_b, args["segments"], args["tip_T_cam"],
+                                      args["world_T_base_a"][p], args["world_T_base_b"],
+                                      args["f_a"][p], args["f_b"][p], [1e-3, 2e-3, 3e-3][p])
+        rows = slice(res.rows[p], res.rows[p + 1])
+        np.testing.assert_allclose(res.r[rows], r, rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(res.J_a[p], ja, rtol=1e-9, atol=1e-8)
+        np.testing.assert_allclose(res.J_b[rows], jb, rtol=1e-9, atol=1e-8)
+
+
+@pytest.mark.parametrize("cam", [0, 1, 2])
+def test_calibration_jacobians_match_central_differences(mounted_robot: Robot,
+                                                         cam: int) -> None:
+    seq, b, gaps, args = _frame_setup(mounted_robot, cam, 21 + cam, moving_base=True)
+    n = cam + 1
+    th_b = list(seq.thetas[b, :n] + 0.01)
+    th_a = [list(seq.thetas[b - g, :n] - 0.01) for g in gaps]
+    res = epipolar_frame_residual(th_b, th_a, sigma=1e-3, calibration=True, **args)
+    base = dict(args)
+    segs = list(args["segments"])
+    h = 1e-6
+    for j in range(n):
+        for name, column in (("k", res.J_k[:, j]), ("delta_max", res.J_delta[:, j])):
+            out = []
+            for sign in (1.0, -1.0):
+                s = segs[j]
+                value = getattr(s, name) + sign * h
+                moved = Segment(s.length, value if name == "k" else s.k,
+                                value if name == "delta_max" else s.delta_max, s.theta_max)
+                base["segments"] = segs[:j] + [moved] + segs[j + 1:]
+                out.append(epipolar_frame_residual(th_b, th_a, sigma=1e-3, jacobians=False,
+                                                   **base).r)
+            numeric = (out[0] - out[1]) / (2 * h)
+            scale = np.max(np.abs(numeric))
+            assert scale > 1e-3, f"{name} of segment {j} should move the residual"
+            np.testing.assert_allclose(column, numeric, atol=2e-5 * scale + 1e-6)
+    # Calibration does not change the angle Jacobians.
+    plain = epipolar_frame_residual(th_b, th_a, sigma=1e-3, **args)
+    np.testing.assert_allclose(res.J_b, plain.J_b, rtol=1e-12, atol=1e-12)
+
+
+def _values(keys_values: dict[int, float]) -> gtsam.Values:
+    values = gtsam.Values()
+    for k, v in keys_values.items():
+        values.insert(k, np.array([v]))
+    return values
+
+
+@pytest.mark.parametrize("calibrate", [False, True])
+def test_compressed_factor_gives_the_same_system_and_error(mounted_robot: Robot,
+                                                           calibrate: bool) -> None:
+    cam = 2
+    seq, b, gaps, args = _frame_setup(mounted_robot, cam, 31)
+    keys_b = [100, 101, 102]
+    keys_a = [[10 * g, 10 * g + 1, 10 * g + 2] for g in gaps]
+    cal = [(200 + 2 * j, 201 + 2 * j) for j in range(3)] if calibrate else None
+    kv = {k: float(t) for k, t in zip(keys_b, seq.thetas[b] + 0.004, strict=True)}
+    for ks, g in zip(keys_a, gaps, strict=True):
+        kv.update({k: float(t) for k, t in zip(ks, seq.thetas[b - g] - 0.003, strict=True)})
+    if cal:
+        for (kk, kd), s in zip(cal, mounted_robot.segments, strict=True):
+            kv[kk], kv[kd] = s.k + 0.01, s.delta_max - 0.01
+    values = _values(kv)
+    full = epipolar_frame_factor(keys_b, keys_a, sigma=2e-3, compress=False,
+                                 calibration_keys=cal, **args)
+    small = epipolar_frame_factor(keys_b, keys_a, sigma=2e-3, compress=True,
+                                  calibration_keys=cal, **args)
+    assert small.dim() == len(small.keys()) + 1 < full.dim()
+    assert small.error(values) == pytest.approx(full.error(values), rel=1e-10)
+    ordering = gtsam.Ordering()
+    for k in small.keys():
+        ordering.push_back(k)
+    g_full, g_small = gtsam.GaussianFactorGraph(), gtsam.GaussianFactorGraph()
+    g_full.push_back(full.linearize(values))
+    g_small.push_back(small.linearize(values))
+    info_full, eta_full = g_full.hessian(ordering)
+    info_small, eta_small = g_small.hessian(ordering)
+    np.testing.assert_allclose(info_small, info_full, rtol=1e-9, atol=1e-9 * np.abs(
+        info_full).max())
+    np.testing.assert_allclose(eta_small, eta_full, rtol=1e-9, atol=1e-9 * np.abs(
+        eta_full).max())
+    # Away from the linearisation point (no Jacobians asked), the error is still exact.
+    kv2 = {k: v + 0.001 for k, v in kv.items()}
+    assert small.error(_values(kv2)) == pytest.approx(full.error(_values(kv2)), rel=1e-10)
+
+
+def test_factor_memo_answers_repeats_and_notices_new_points(mounted_robot: Robot,
+                                                            monkeypatch) -> None:
+    import factors.epipolar as module
+
+    seq, b, gaps, args = _frame_setup(mounted_robot, 1, 41)
+    keys_b, keys_a = [100, 101], [[10 * g, 10 * g + 1] for g in gaps]
+    kv = {k: float(t) for k, t in zip(keys_b, seq.thetas[b, :2], strict=True)}
+    for ks, g in zip(keys_a, gaps, strict=True):
+        kv.update({k: float(t) for k, t in zip(ks, seq.thetas[b - g, :2], strict=True)})
+    factor = epipolar_frame_factor(keys_b, keys_a, sigma=1e-3, **args)
+    calls = []
+    real = module.epipolar_frame_residual
+    monkeypatch.setattr(module, "epipolar_frame_residual",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))
+    values = _values(kv)
+    first = factor.linearize(values)
+    again = factor.linearize(values)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(first.jacobian()[0], again.jacobian()[0])
+    kv[100] += 1e-4
+    moved = factor.linearize(_values(kv))
+    assert len(calls) == 2
+    assert not np.allclose(moved.jacobian()[1], first.jacobian()[1])

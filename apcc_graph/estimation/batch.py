@@ -33,7 +33,7 @@ from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.geometry import SegmentTwoView, epipolar_errors
 from apcc_graph.sequence import Sequence
-from factors.epipolar import ROBUST_LOSSES, epipolar_factor
+from factors.epipolar import ROBUST_LOSSES, epipolar_frame_factor
 from factors.priors import angle_prior, joint_limit_factor, motion_prior
 
 DEFAULT_GAPS = (1, 2, 5, 10, 20)
@@ -56,6 +56,11 @@ class GraphOptions:
         limit_sigma: softness of the joint limits (radians).
         loss: robust loss per correspondence (``"huber"``, ``"cauchy"``, ``"none"``).
         min_baseline: pairs whose camera moved less (metres) are left out (no parallax).
+        reuse_inflation: each observation enters about ``2 * len(gaps)`` frame pairs, whose
+            residuals share its pixel noise; treating them as independent overcounts the
+            evidence that many times. With this on (default) each pair's sigma is inflated by
+            ``sqrt(2 * len(gaps))`` (a composite-likelihood weight: every observation counts
+            once overall), which also keeps the marginal sigmas honest.
     """
 
     gaps: tuple[int, ...] = DEFAULT_GAPS
@@ -67,12 +72,18 @@ class GraphOptions:
     limit_sigma: float = math.radians(1.0)
     loss: str = "huber"
     min_baseline: float = 0.002
+    reuse_inflation: bool = True
 
     def __post_init__(self) -> None:
         if self.loss not in ROBUST_LOSSES:
             raise ValueError(f"robust loss {self.loss!r}: expected one of {ROBUST_LOSSES}")
         if not self.gaps or min(self.gaps) < 1:
             raise ValueError(f"gaps = {self.gaps!r}: expected positive frame gaps")
+
+
+def reuse_factor(options: GraphOptions) -> float:
+    """The pair-sigma inflation ``sqrt(2 * len(gaps))`` (1 without ``reuse_inflation``)."""
+    return math.sqrt(2.0 * len(options.gaps)) if options.reuse_inflation else 1.0
 
 
 def angle_key(frame: int, segment: int, n_segments: int) -> int:
@@ -110,9 +121,10 @@ def build_graph(
     for i in robot.camera_segments:
         camera = robot.cameras[i]
         assert camera is not None
-        sigma = o.threshold_px / camera.fx
+        sigma = o.threshold_px * reuse_factor(o) / camera.fx
         segs = robot.segments[: i + 1]
         for b in frames:
+            pairs = []
             for gap in o.gaps:
                 a = b - gap
                 if a < first:
@@ -124,11 +136,16 @@ def build_graph(
                              o.gate_px / camera.fx, o.min_baseline)
                 if keep.sum() < o.min_shared:
                     continue
-                graph.add(epipolar_factor(
-                    [angle_key(a, j, n_seg) for j in range(i + 1)],
-                    [angle_key(b, j, n_seg) for j in range(i + 1)],
-                    segs, camera.tip_T_cam, _world_T_base(sequence, a),
-                    _world_T_base(sequence, b), corr.f_a[keep], corr.f_b[keep], sigma, o.loss))
+                pairs.append((a, corr.f_a[keep], corr.f_b[keep]))
+            if not pairs:
+                continue
+            # One factor per camera and frame over all its pairs (one Python callback).
+            graph.add(epipolar_frame_factor(
+                [angle_key(b, j, n_seg) for j in range(i + 1)],
+                [[angle_key(a, j, n_seg) for j in range(i + 1)] for a, _, _ in pairs],
+                segs, camera.tip_T_cam, _world_T_base(sequence, b),
+                [_world_T_base(sequence, a) for a, _, _ in pairs], [p[1] for p in pairs],
+                [p[2] for p in pairs], sigma, o.loss))
     return graph
 
 

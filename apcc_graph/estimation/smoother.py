@@ -1,0 +1,699 @@
+"""Streaming estimation: a fixed-lag smoother over the last ``lag`` seconds of frames (gtsam).
+
+The graph is the batch's (:mod:`apcc_graph.estimation.batch`), grown one frame at a time:
+
+- variables ``theta[f, i]`` (Vector1, radians), key ``f * S + i`` (as the batch);
+- a prior on the first frame (``theta0``), a random-walk motion prior between consecutive frames,
+  soft joint limits;
+- per camera and new frame b, one generalized epipolar factor against every earlier frame
+  ``b - gap`` still in the window (:func:`factors.epipolar.epipolar_frame_factor`: one Python
+  callback per camera and frame), correspondences gated at the current estimate;
+- optionally (``calibrate=True``) each segment's k and delta_max as variables with priors, never
+  marginalised (online self-calibration).
+
+New frames are initialised by the 1-point front end, segment by segment from the base: the
+prediction (constant angular velocity) is checked against the correspondences with the previous
+frame; when most agree it is refined on them (the RANSAC's local optimisation), otherwise
+:func:`apcc_graph.solvers.one_point_ransac` runs from scratch.
+
+Backends: gtsam's ``IncrementalFixedLagSmoother`` (iSAM2, default) or ``BatchFixedLagSmoother``
+(Levenberg-Marquardt over the whole window at every frame). The incremental one re-linearises
+only the factors whose variables moved (Python factors are the cost), so it is the default;
+``apcc-graph bench smoother`` measures both.
+
+Failure modes handled (each has a test):
+
+- a frame without tracks in some or all cameras: the motion prior carries the angles, their
+  uncertainty grows; if the motion prior is disabled, a weak prior at the prediction
+  (``loose_sigma``) keeps the system determined;
+- a robot standing still: pairs whose camera moved less than ``min_baseline`` carry no parallax
+  and are left out (the motion prior holds the angles);
+- gtsam's indeterminate-system exception: caught; the update is repaired by weak priors on the
+  new frame's angles, and if that fails too the smoother restarts from its last estimate;
+- marginalising a variable that only has a prior: every frame is linked to the previous one by
+  the motion prior (or the weak prior above), and a test marginalises such variables.
+
+Frames leaving the window keep the estimate (and marginal sigma) of the last update in which they
+were inside it; :meth:`FixedLagSmoother.finish` returns every frame's final estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from tqdm import tqdm
+
+from apcc_graph.estimation.batch import GraphOptions, angle_key, reuse_factor
+from apcc_graph.estimation.result import Estimate
+from apcc_graph.kinematics import apcc_transform_scalar
+from apcc_graph.robot import Robot
+from apcc_graph.sequence import FrameObservations, Sequence
+from apcc_graph.solvers import one_point_ransac
+from factors.epipolar import EpipolarFrameFactor
+from factors.priors import angle_prior, joint_limit_factor, motion_prior
+
+FloatArray = NDArray[np.float64]
+BACKENDS = ("incremental", "batch")
+_CAL_BASE = gtsam.symbol("a", 0)
+"""Angle keys are ``frame * S + segment``, far below any gtsam Symbol key (calibration)."""
+LINEARIZATIONS = ("first-estimate", "relinearize")
+
+
+@dataclass(frozen=True)
+class SmootherFrame:
+    """One frame's estimate as the smoother returns it.
+
+    Attributes:
+        frame: 0-based frame index (the order of :meth:`FixedLagSmoother.update` calls).
+        timestamp: seconds.
+        thetas: ``(S,)`` angles (radians).
+        sigmas: ``(S,)`` marginal standard deviations (radians; NaN without uncertainty).
+        status: ``(S,)`` per segment: ``"ok"`` (measured), ``"no-tracks"``, ``"no-motion"``,
+            ``"no-consensus"``, ``"no-camera"`` (the prior carries it), ``"initial"`` (first
+            frame), ``"recovered"`` (after a gtsam failure).
+        calibration: ``(S, 2)`` current ``k`` and ``delta_max`` (radians) when self-calibrating.
+    """
+
+    frame: int
+    timestamp: float
+    thetas: FloatArray
+    sigmas: FloatArray
+    status: NDArray[np.str_]
+    calibration: FloatArray | None = None
+
+
+@dataclass
+class _Frame:
+    """What the smoother keeps of a frame while it can still be paired."""
+
+    index: int
+    timestamp: float
+    base: FloatArray
+    ids: dict[int, NDArray[np.int64]]
+    bearings: dict[int, FloatArray]
+    cam_positions: dict[int, FloatArray] = field(default_factory=dict)
+    stamp: float = 0.0
+
+
+def _calibration_keys(segment: int) -> tuple[int, int]:
+    return gtsam.symbol("k", segment), gtsam.symbol("d", segment)
+
+
+class FixedLagSmoother:
+    """Streaming estimator of a robot's segment angles: ``update(frame)`` once per frame.
+
+    Args:
+        robot: the robot model.
+        lag: window length (seconds); variables older than this are marginalised.
+        options: graph construction (:class:`~apcc_graph.estimation.batch.GraphOptions`);
+            ``gaps`` longer than the window are unused.
+        theta0: ``(S,)`` starting configuration in radians (default straight).
+        backend: ``"incremental"`` (iSAM2) or ``"batch"`` (LM over the window).
+        uncertainty: compute marginal sigmas (a little slower).
+        calibrate: add each segment's k and delta_max as variables (self-calibration).
+        calibration_sigmas: prior standard deviations of k and delta_max (radians) around the
+            robot's values.
+        relinearize_threshold: iSAM2 re-linearises a variable that moved more (radians).
+        relinearize_skip: iSAM2 checks for re-linearisation every this many updates.
+        loose_sigma: the weak prior (radians) that keeps a frame without any constraint
+            determined when the motion prior is disabled.
+        marginalise_every: frames leave the window in blocks of this many (gtsam re-eliminates
+            the window whenever it marginalises, which re-linearises the Python factors; blocks
+            pay that once per block instead of every frame). The window holds between ``lag``
+            and ``lag`` plus one block of frames.
+        linearization: ``"first-estimate"`` (default): each epipolar factor is linearised
+            once, when its frame arrives, and enters gtsam as a C++ ``LinearContainerFactor``
+            (first-estimate Jacobians, as in filter-based visual-inertial odometry): no Python
+            runs inside gtsam. ``"relinearize"``: the Python factor itself, which iSAM2
+            re-linearises when its variables move more than ``relinearize_threshold``.
+        limit_margin: soft joint limits are added to frames whose initial angle is within
+            this of the limit (radians); elsewhere they are inactive anyway.
+        seed: random seed of the front end's RANSAC.
+
+    Example::
+
+        smoother = FixedLagSmoother(robot, lag=1.0)
+        for f in range(sequence.n_frames):
+            now = smoother.update(sequence.frame(f))   # that frame's estimate
+        final = smoother.finish()                      # every frame, smoothed
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        lag: float = 1.0,
+        options: GraphOptions | None = None,
+        theta0: ArrayLike | None = None,
+        backend: str = "incremental",
+        uncertainty: bool = True,
+        calibrate: bool = False,
+        calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0)),
+        relinearize_threshold: float = 1e-3,
+        relinearize_skip: int = 1,
+        loose_sigma: float = math.radians(30.0),
+        marginalise_every: int = 10,
+        limit_margin: float = math.radians(10.0),
+        linearization: str = "first-estimate",
+        seed: int = 0,
+    ) -> None:
+        if not isinstance(robot, Robot):
+            raise ValueError(f"FixedLagSmoother.robot: expected a Robot, got "
+                             f"{type(robot).__name__}")
+        if not (math.isfinite(lag) and lag > 0.0):
+            raise ValueError(f"FixedLagSmoother.lag = {lag!r}: expected a positive number of "
+                             "seconds")
+        if backend not in BACKENDS:
+            raise ValueError(f"FixedLagSmoother.backend = {backend!r}: expected one of "
+                             f"{BACKENDS}")
+        n_seg = robot.n_segments
+        theta0 = np.zeros(n_seg) if theta0 is None else np.asarray(theta0, dtype=float)
+        if theta0.shape != (n_seg,) or not np.all(np.isfinite(theta0)):
+            raise ValueError(f"FixedLagSmoother.theta0 has shape {theta0.shape}: expected "
+                             f"({n_seg},) finite angles in radians")
+        self.robot = robot
+        self.lag = float(lag)
+        self.options = GraphOptions() if options is None else options
+        self.theta0 = theta0
+        self.backend = backend
+        self.uncertainty = uncertainty
+        self.calibrate = calibrate
+        self.calibration_sigmas = calibration_sigmas
+        self.relinearize_threshold = relinearize_threshold
+        self.relinearize_skip = relinearize_skip
+        self.loose_sigma = loose_sigma
+        self.limit_margin = limit_margin
+        if linearization not in LINEARIZATIONS:
+            raise ValueError(f"FixedLagSmoother.linearization = {linearization!r}: expected "
+                             f"one of {LINEARIZATIONS}")
+        self.linearization = linearization
+        if int(marginalise_every) < 1:
+            raise ValueError(f"FixedLagSmoother.marginalise_every = {marginalise_every!r}: "
+                             "expected a positive number of frames")
+        self.marginalise_every = int(marginalise_every)
+        self._block_stamp = 0.0
+        self._rng = np.random.default_rng(seed)
+        self._anchor_unconstrained = True  # tests turn this off to provoke gtsam's failure
+        self._smoother = self._new_smoother()
+        self._history: deque[_Frame] = deque()
+        self._window: dict[int, float] = {}  # frame -> gtsam stamp, frames inside the window
+        self._times: dict[int, float] = {}  # frame -> timestamp, frames inside the window
+        self._thetas: dict[int, FloatArray] = {}  # latest estimate of every frame in the window
+        self._final: dict[int, SmootherFrame] = {}  # frames that left the window
+        self._status: dict[int, NDArray[np.str_]] = {}
+        self._count = 0
+        self._recoveries = 0
+
+    # ---------------------------------------------------------------------------- set-up
+    def _new_smoother(self) -> gtsam.FixedLagSmoother:
+        if self.backend == "batch":
+            return gtsam.BatchFixedLagSmoother(self.lag)
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.relinearize_threshold)
+        params.relinearizeSkip = self.relinearize_skip
+        params.findUnusedFactorSlots = False
+        return gtsam.IncrementalFixedLagSmoother(self.lag, params)
+
+    @property
+    def n_frames(self) -> int:
+        """Frames received so far."""
+        return self._count
+
+    @property
+    def recoveries(self) -> int:
+        """How many times a gtsam failure was caught and recovered from."""
+        return self._recoveries
+
+    # ---------------------------------------------------------------------------- update
+    def update(self, observations: FrameObservations) -> SmootherFrame:
+        """Add one frame; returns that frame's estimate (filtered: only past frames seen).
+
+        Raises:
+            ValueError: a timestamp not after the previous frame's, or observations of a
+                segment without a camera.
+        """
+        f = self._count
+        t = float(observations.timestamp)
+        if not math.isfinite(t) or (self._history and t <= self._history[-1].timestamp):
+            last = self._history[-1].timestamp if self._history else float("nan")
+            raise ValueError(f"frame {f}: timestamp {t!r} s is not after the previous frame's "
+                             f"{last!r} s")
+        frame = self._ingest(f, t, observations)
+        n_seg = self.robot.n_segments
+        o = self.options
+        if f % self.marginalise_every == 0:
+            self._block_stamp = t
+        stamp = self._block_stamp  # gtsam's timestamp of this frame's variables
+        frame.stamp = stamp
+        # Frames that leave the window in this update keep their current estimate.
+        self._retire(stamp)
+        status = np.full(n_seg, "initial" if f == 0 else "ok", dtype="<U24")
+        graph = gtsam.NonlinearFactorGraph()
+        if f == 0:
+            thetas = self.theta0.copy()
+            n_epipolar = 0
+        else:
+            thetas = self._predict(f)
+            n_epipolar = self._measure(graph, frame, thetas, status)
+        self._set_positions(frame, thetas)
+        values = gtsam.Values()
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        keys = [angle_key(f, i, n_seg) for i in range(n_seg)]
+        for i, key in enumerate(keys):
+            values.insert(key, np.array([thetas[i]]))
+            stamps.insert((key, stamp))
+            theta_max = self.robot.segments[i].theta_max
+            if abs(thetas[i]) > theta_max - self.limit_margin:
+                # Soft limits only where they can act (a Python factor costs time).
+                graph.add(joint_limit_factor(key, theta_max, o.limit_sigma))
+        if f == 0:
+            for i, key in enumerate(keys):
+                graph.add(angle_prior(key, self.theta0[i], o.theta0_sigma))
+            if self.calibrate:
+                self._add_calibration(graph, values)
+        elif o.motion_sigma is not None:
+            dt = t - self._history[-2].timestamp
+            for i, key in enumerate(keys):
+                graph.add(motion_prior(angle_key(f - 1, i, n_seg), key, o.motion_sigma, dt))
+        if self.calibrate:
+            for i in range(n_seg):
+                for key in _calibration_keys(i):
+                    stamps.insert((key, stamp))  # never marginalised
+        if (f > 0 and o.motion_sigma is None and n_epipolar == 0
+                and self._anchor_unconstrained):
+            for i, key in enumerate(keys):
+                graph.add(angle_prior(key, thetas[i], self.loose_sigma))
+        self._solve(graph, values, stamps, f, thetas, status)
+        self._window[f] = stamp
+        self._times[f] = t
+        self._status[f] = status
+        self._count += 1
+        return self._frame_estimate(f, t, status)
+
+    def _ingest(self, f: int, t: float, obs: FrameObservations) -> _Frame:
+        base = np.eye(4) if obs.world_T_base is None else np.asarray(obs.world_T_base, float)
+        ids: dict[int, NDArray[np.int64]] = {}
+        bearings: dict[int, FloatArray] = {}
+        for cam, (track_ids, uv) in obs.tracks.items():
+            camera = self.robot.cameras[cam] if 0 <= cam < self.robot.n_segments else None
+            if camera is None:
+                raise ValueError(f"frame {f}: observations of camera {cam}, but segment {cam} "
+                                 f"has no camera (cameras ride on {self.robot.camera_segments})")
+            track_ids = np.asarray(track_ids, dtype=np.int64)
+            if len(track_ids) == 0:
+                continue
+            given = None if obs.bearings is None else obs.bearings.get(cam)
+            fb = camera.bearings(np.asarray(uv, dtype=float)) if given is None else given
+            order = np.argsort(track_ids, kind="stable")
+            ids[cam] = track_ids[order]
+            bearings[cam] = np.asarray(fb, dtype=float)[order]
+        frame = _Frame(f, t, base, ids, bearings)
+        self._history.append(frame)
+        longest = max(self.options.gaps)
+        while self._history and self._history[0].index < f - longest:
+            self._history.popleft()
+        return frame
+
+    def _retire(self, stamp: float) -> None:
+        """Record the final estimate of frames that the coming update marginalises."""
+        leaving = [g for g, sg in self._window.items() if sg < stamp - self.lag]
+        if not leaving:
+            return
+        estimate = self._smoother.calculateEstimate()
+        n_seg = self.robot.n_segments
+        for g in leaving:
+            thetas = np.array([estimate.atVector(angle_key(g, i, n_seg))[0]
+                               for i in range(n_seg)])
+            sigmas = self._sigmas(g) if self.uncertainty else np.full(n_seg, np.nan)
+            self._window.pop(g)
+            self._final[g] = SmootherFrame(g, self._times.pop(g), thetas, sigmas,
+                                           self._status.pop(g))
+            self._thetas.pop(g, None)
+
+    def _add_calibration(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        sk, sd = self.calibration_sigmas
+        for i, seg in enumerate(self.robot.segments):
+            k_key, d_key = _calibration_keys(i)
+            values.insert(k_key, np.array([seg.k]))
+            values.insert(d_key, np.array([seg.delta_max]))
+            graph.add(angle_prior(k_key, seg.k, sk))
+            graph.add(angle_prior(d_key, seg.delta_max, sd))
+
+    # ----------------------------------------------------------------------- front end
+    def _segments(self) -> tuple:
+        """The segments with the current calibration."""
+        if not self.calibrate or self._count == 0:
+            return self.robot.segments
+        from apcc_graph.segment import Segment
+
+        est = self._smoother.calculateEstimate()
+        out = []
+        for i, seg in enumerate(self.robot.segments):
+            k_key, d_key = _calibration_keys(i)
+            k = min(max(float(est.atVector(k_key)[0]), 1e-3), 0.5 - 1e-3)
+            lim = 0.999 * seg.theta_max
+            d = min(max(float(est.atVector(d_key)[0]), -lim), lim)
+            out.append(Segment(seg.length, k, d, seg.theta_max))
+        return tuple(out)
+
+    def _predict(self, f: int) -> FloatArray:
+        """Constant angular velocity from the two previous frames' estimates."""
+        prev = self._thetas[f - 1]
+        older = self._thetas.get(f - 2)
+        prediction = prev if older is None else 2.0 * prev - older
+        lim = np.array([s.theta_max for s in self.robot.segments])
+        return np.clip(prediction, -lim, lim)
+
+    def _set_positions(self, frame: _Frame, thetas: FloatArray) -> None:
+        """Camera positions of a frame at the given angles (for the baseline test)."""
+        pose = frame.base
+        for i, seg in enumerate(self.robot.segments):
+            pose = pose @ apcc_transform_scalar(float(thetas[i]), seg)[0]
+            camera = self.robot.cameras[i]
+            if camera is not None:
+                frame.cam_positions[i] = (pose @ camera.tip_T_cam)[:3, 3]
+
+    def _measure(self, graph: gtsam.NonlinearFactorGraph, frame: _Frame, thetas: FloatArray,
+                 status: NDArray[np.str_]) -> int:
+        """Front end and epipolar factors of a new frame, camera by camera from the base.
+
+        For camera i: the pairs (a, frame) with enough shared tracks and parallax, one factor
+        over them, gated at the current angles (the prediction). If most correspondences with
+        the previous frame fall outside the gate, the 1-point RANSAC re-initialises
+        ``thetas[i]`` and the factor is rebuilt. ``thetas`` is updated in place.
+        """
+        f = frame.index
+        by_index = {h.index: h for h in self._history}
+        segments = self._segments()
+        pose = frame.base
+        added = 0
+        for i, seg in enumerate(segments):
+            camera = self.robot.cameras[i]
+            link = apcc_transform_scalar(float(thetas[i]), seg)[0]
+            if camera is None or i not in frame.ids:
+                status[i] = "no-camera" if camera is None else "no-tracks"
+                pose = pose @ link
+                continue
+            pairs, gap_one = self._pairs(i, frame, by_index, (pose @ link @ camera.tip_T_cam))
+            factor = self._factor(i, frame, pairs, thetas) if pairs else None
+            # The front end's check: most correspondences with the previous frame fit the
+            # prediction. Without parallax at the prediction there is nothing to check: ask
+            # the 1-point RANSAC (which also recognises a camera that did not move).
+            if gap_one is None:
+                agree = True
+            elif factor is None or not any(p is gap_one for p in pairs):
+                agree = False
+            else:
+                agree = factor.kept[[p is gap_one for p in pairs].index(True)] >= 0.5
+            if not agree:
+                if self._relocate(i, seg, camera, gap_one, pose, thetas, status):
+                    link = apcc_transform_scalar(float(thetas[i]), seg)[0]
+                    pairs, _ = self._pairs(i, frame, by_index,
+                                           (pose @ link @ camera.tip_T_cam))
+                    factor = self._factor(i, frame, pairs, thetas) if pairs else None
+            pose = pose @ link
+            if factor is None:
+                if status[i] == "ok":
+                    status[i] = "no-motion" if not pairs else "no-consensus"
+                continue
+            if not factor.mask.any():
+                if status[i] == "ok":
+                    status[i] = "no-consensus"
+                continue
+            if self.linearization == "first-estimate":
+                graph.add(factor.linear_factor(self._linearization_point(factor, f, thetas)))
+            else:
+                graph.add(factor.factor)
+            added += 1
+        return added
+
+    def _pairs(self, i: int, frame: _Frame, by_index: dict[int, _Frame],
+               world_T_cam: FloatArray) -> tuple[list, tuple | None]:  # noqa: D417
+        """Earlier frames that camera i can be paired with: ``[(frame, f_a, f_b)]`` (enough
+        shared tracks and parallax), and the previous frame's entry whatever its parallax (or
+        None) for the front end's check."""
+        o = self.options
+        pairs, gap_one = [], None
+        position = world_T_cam[:3, 3]
+        for gap in o.gaps:
+            old = by_index.get(frame.index - gap)
+            if old is None or i not in old.ids or old.index not in self._thetas:
+                continue
+            if frame.stamp - old.stamp >= self.lag:  # marginalised in this update
+                continue
+            _, ia, ib = np.intersect1d(old.ids[i], frame.ids[i], assume_unique=True,
+                                       return_indices=True)
+            if len(ia) < o.min_shared:
+                continue
+            entry = (old, old.bearings[i][ia], frame.bearings[i][ib])
+            if gap == 1:
+                gap_one = entry
+            if np.linalg.norm(position - old.cam_positions[i]) >= o.min_baseline:
+                pairs.append(entry)  # else no parallax: the motion prior carries it
+        return pairs, gap_one
+
+    def _factor(self, i: int, frame: _Frame, pairs: list,
+                thetas: FloatArray) -> EpipolarFrameFactor | None:
+        """Camera i's factor over ``pairs``, gated (evaluated once here) at ``thetas``."""
+        o = self.options
+        n_seg = self.robot.n_segments
+        camera = self.robot.cameras[i]
+        factor = EpipolarFrameFactor(
+            [angle_key(frame.index, j, n_seg) for j in range(i + 1)],
+            [[angle_key(p[0].index, j, n_seg) for j in range(i + 1)] for p in pairs],
+            self.robot.segments[: i + 1], camera.tip_T_cam, frame.base,
+            [p[0].base for p in pairs], [p[1] for p in pairs], [p[2] for p in pairs],
+            o.threshold_px * reuse_factor(o) / camera.fx, o.loss,
+            calibration_keys=([_calibration_keys(j) for j in range(i + 1)]
+                              if self.calibrate else None),
+            gate=o.gate_px / camera.fx, min_rows=o.min_shared)
+        # Gates at its first evaluation; the linearisation is memoised for linear_factor.
+        factor.factor.linearize(self._linearization_point(factor, frame.index, thetas))
+        return factor
+
+    def _linearization_point(self, factor: EpipolarFrameFactor, f: int,
+                             thetas: FloatArray) -> gtsam.Values:
+        n_seg = self.robot.n_segments
+        values = gtsam.Values()
+        for key in factor.keys:
+            frame, seg = divmod(key, n_seg) if key < _CAL_BASE else (-1, -1)
+            if frame == f:
+                value = thetas[seg]
+            elif frame >= 0:
+                value = self._thetas[frame][seg]
+            else:
+                value = self._calibration_value(key)
+            values.insert(key, np.array([value]))
+        return values
+
+    def _calibration_value(self, key: int) -> float:
+        if self._count == 0:
+            symbol = gtsam.Symbol(key)
+            seg = self.robot.segments[symbol.index()]
+            return seg.k if chr(symbol.chr()) == "k" else seg.delta_max
+        return float(self._smoother.calculateEstimate().atVector(key)[0])
+
+    def _relocate(self, i: int, seg, camera, gap_one: tuple | None,  # noqa: ANN001
+                  pose: FloatArray, thetas: FloatArray, status: NDArray[np.str_]) -> bool:
+        """1-point RANSAC against the previous frame, from scratch; True if it moved."""
+        if gap_one is None:
+            return False
+        old, f_a, f_b = gap_one
+        prev = self._thetas[old.index]
+        segments = self._segments()
+        base_a = old.base
+        for j in range(i):
+            base_a = base_a @ apcc_transform_scalar(float(prev[j]), segments[j])[0]
+        theta, info = one_point_ransac(f_a, f_b, float(prev[i]), seg, camera.tip_T_cam,
+                                       np.linalg.inv(base_a) @ pose,
+                                       threshold=self.options.threshold_px / camera.fx,
+                                       rng=self._rng)
+        if not info.success:
+            status[i] = info.status
+            return False
+        thetas[i] = theta
+        return True
+
+    # -------------------------------------------------------------------------- solve
+    def _solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+               stamps: gtsam.FixedLagSmootherKeyTimestampMap, f: int, thetas: FloatArray,
+               status: NDArray[np.str_]) -> None:
+        """``smoother.update`` with recovery from gtsam's indeterminate-system failure."""
+        n_seg = self.robot.n_segments
+        try:
+            self._smoother.update(graph, values, stamps)
+        except RuntimeError:
+            self._recoveries += 1
+            status[:] = "recovered"
+            repair = gtsam.NonlinearFactorGraph()
+            for i in range(n_seg):
+                repair.add(angle_prior(angle_key(f, i, n_seg), thetas[i], self.loose_sigma))
+            try:
+                self._smoother.update(repair, gtsam.Values(),
+                                      gtsam.FixedLagSmootherKeyTimestampMap())
+            except RuntimeError:
+                self._restart(f, thetas)
+        self._read_window()
+
+    def _restart(self, f: int, thetas: FloatArray) -> None:
+        """A fresh smoother anchored at the last estimates (the window's history is lost)."""
+        n_seg = self.robot.n_segments
+        o = self.options
+        self._smoother = self._new_smoother()
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        t = self._history[-1].stamp
+        for i in range(n_seg):
+            key = angle_key(f, i, n_seg)
+            values.insert(key, np.array([thetas[i]]))
+            stamps.insert((key, t))
+            graph.add(angle_prior(key, thetas[i], self.loose_sigma))
+            graph.add(joint_limit_factor(key, self.robot.segments[i].theta_max, o.limit_sigma))
+        if self.calibrate:
+            self._add_calibration(graph, values)
+            for i in range(n_seg):
+                for key in _calibration_keys(i):
+                    stamps.insert((key, t))
+        self._smoother.update(graph, values, stamps)
+        # Older frames can no longer be referenced: keep their estimates as final.
+        for g in [g for g in self._window if g != f]:
+            est = self._thetas.get(g, thetas)
+            self._window.pop(g)
+            self._final[g] = SmootherFrame(g, self._times.pop(g), est.copy(),
+                                           np.full(n_seg, np.nan), self._status.pop(g))
+            self._thetas.pop(g, None)
+        for h in list(self._history)[:-1]:
+            self._history.remove(h)
+
+    def _read_window(self, everything: bool = False) -> None:
+        """Refresh the estimates the next frame needs (the frames it will be paired with and
+        the two it is predicted from), or every frame in the window."""
+        n_seg = self.robot.n_segments
+        f = self._count
+        if everything:
+            wanted = set(self._window) | {f}
+        else:
+            wanted = {f, f - 1} | {f + 1 - gap for gap in self.options.gaps}
+        by_index = {h.index: h for h in self._history}
+        for g in sorted(wanted):
+            if g < 0 or (g not in self._window and g != f):
+                continue
+            try:
+                self._thetas[g] = np.array([
+                    self._smoother.calculateEstimateVector(angle_key(g, i, n_seg))[0]
+                    for i in range(n_seg)])
+            except (RuntimeError, IndexError, KeyError):
+                continue  # already marginalised
+            if g in by_index:
+                self._set_positions(by_index[g], self._thetas[g])
+
+    def _sigmas(self, g: int) -> FloatArray:
+        n_seg = self.robot.n_segments
+        out = np.full(n_seg, np.nan)
+        if self.backend == "batch":
+            return out  # BatchFixedLagSmoother has no marginalCovariance
+        for i in range(n_seg):
+            try:
+                cov = self._smoother.marginalCovariance(angle_key(g, i, n_seg))
+                out[i] = math.sqrt(max(float(cov[0, 0]), 0.0))
+            except RuntimeError:
+                pass
+        return out
+
+    def _calibration_now(self) -> FloatArray | None:
+        if not self.calibrate:
+            return None
+        est = self._smoother.calculateEstimate()
+        return np.array([[est.atVector(key)[0] for key in _calibration_keys(i)]
+                         for i in range(self.robot.n_segments)])
+
+    def _frame_estimate(self, f: int, t: float, status: NDArray[np.str_]) -> SmootherFrame:
+        n_seg = self.robot.n_segments
+        sigmas = self._sigmas(f) if self.uncertainty else np.full(n_seg, np.nan)
+        return SmootherFrame(f, t, self._thetas[f].copy(), sigmas, status.copy(),
+                             self._calibration_now())
+
+    def refine(self, iterations: int = 1) -> None:
+        """Spend spare time: more Gauss-Newton steps on the current window (no new frame).
+
+        With ``linearization="relinearize"`` this converges to the window's optimum; with
+        first-estimate factors, to the optimum of their linearisation.
+        """
+        for _ in range(int(iterations)):
+            try:
+                self._smoother.update(gtsam.NonlinearFactorGraph(), gtsam.Values(),
+                                      gtsam.FixedLagSmootherKeyTimestampMap())
+            except RuntimeError:
+                self._recoveries += 1
+                break
+        self._read_window(everything=True)
+
+    # ------------------------------------------------------------------------- output
+    def finish(self) -> list[SmootherFrame]:
+        """Every frame's final estimate, in order (frames still in the window: their current
+        smoothed estimate). The smoother can keep receiving frames afterwards."""
+        n_seg = self.robot.n_segments
+        self._read_window(everything=True)
+        out = dict(self._final)
+        for g in self._window:
+            sigmas = self._sigmas(g) if self.uncertainty else np.full(n_seg, np.nan)
+            out[g] = SmootherFrame(g, self._times[g], self._thetas[g].copy(), sigmas,
+                                   self._status[g].copy(), self._calibration_now())
+        return [out[g] for g in sorted(out)]
+
+    def calibration(self) -> Mapping[int, tuple[float, float]] | None:
+        """Current ``{segment: (k, delta_max)}`` when self-calibrating, else ``None``."""
+        now = self._calibration_now()
+        if now is None:
+            return None
+        return {i: (float(k), float(d)) for i, (k, d) in enumerate(now)}
+
+    def __iter__(self) -> Iterator[SmootherFrame]:
+        return iter(self.finish())
+
+
+def smoother_estimate(
+    sequence: Sequence,
+    theta0: ArrayLike | None = None,
+    lag: float = 1.0,
+    options: GraphOptions | None = None,
+    progress: bool = False,
+    **smoother_options: Any,
+) -> Estimate:
+    """Run :class:`FixedLagSmoother` over a recorded sequence, frame by frame.
+
+    Each frame's angles are its final smoothed estimate (the last update in which it was inside
+    the window). Ground-truth columns are never read.
+
+    Args:
+        sequence: the sequence.
+        theta0: ``(S,)`` starting configuration in radians (default straight).
+        lag: window length in seconds.
+        options: graph construction (:class:`~apcc_graph.estimation.batch.GraphOptions`).
+        progress: show a progress bar.
+        **smoother_options: further :class:`FixedLagSmoother` arguments.
+
+    Returns:
+        The estimate, ``method = "smoother"``; ``inliers`` is 0 (the factors weigh each
+        correspondence instead of classifying it).
+    """
+    smoother = FixedLagSmoother(sequence.robot, lag=lag, options=options, theta0=theta0,
+                                **smoother_options)
+    for f in tqdm(range(sequence.n_frames), desc="smoother", disable=not progress):
+        smoother.update(sequence.frame(f))
+    frames = smoother.finish()
+    n_seg = sequence.n_segments
+    return Estimate(
+        method="smoother", robot=sequence.robot, timestamps=sequence.timestamps.copy(),
+        thetas=np.array([fr.thetas for fr in frames]),
+        sigmas=np.array([fr.sigmas for fr in frames]),
+        status=np.array([fr.status for fr in frames], dtype="<U24"),
+        inliers=np.zeros((sequence.n_frames, n_seg), dtype=np.int64),
+        world_T_base=sequence.world_T_base)
