@@ -30,6 +30,8 @@ _EXAMPLES = {
     "bench solver": "example:\n  apcc-graph bench solver --trials 20",
     "bench accuracy": "example:\n  apcc-graph bench accuracy --trials 1000",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
+    "bench smoother": "example:\n  apcc-graph bench smoother\n  apcc-graph bench smoother "
+    "--frames 120 --long-frames 450 --memory-frames 1200 --no-batch",
 }
 
 
@@ -290,6 +292,15 @@ def _run_bench_accuracy(args: argparse.Namespace) -> str:
     return "\n".join(lines)
 
 
+def _run_bench_smoother(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.smoother import format_smoother_benchmark, run_smoother_benchmark
+
+    result = run_smoother_benchmark(frames=args.frames, long_frames=args.long_frames,
+                                    memory_frames=args.memory_frames, seed=args.seed,
+                                    batch=not args.no_batch, progress=True)
+    return format_smoother_benchmark(result)
+
+
 def _run_bench_calibration(args: argparse.Namespace) -> str:
     from apcc_graph.bench.calibration import run_calibration_benchmark
 
@@ -496,6 +507,24 @@ def build_parser() -> argparse.ArgumentParser:
     calb.add_argument("--noise-deg", type=float, default=0.5)
     calb.add_argument("--seed", type=int, default=0)
     calb.set_defaults(run=_run_bench_calibration)
+
+    smb = bench_sub.add_parser(
+        "smoother",
+        help="the back end against the chain: accuracy, drift, speed, memory, self-calibration",
+        description="Simulate 3-segment room-scene sequences (1 px noise, 10%% and 30%% "
+        "outliers, ~150 tracks per camera, 30 fps) and measure the chain, the fixed-lag "
+        "smoother and the batch, in one run.",
+        epilog=_EXAMPLES["bench smoother"], formatter_class=fmt,
+    )
+    smb.add_argument("--frames", type=_at_least(30), default=600,
+                     help="frames of the accuracy and self-calibration runs")
+    smb.add_argument("--long-frames", type=_at_least(400), default=3000,
+                     help="frames of the drift and speed run")
+    smb.add_argument("--memory-frames", type=_at_least(1000), default=10_000,
+                     help="frames of the memory run")
+    smb.add_argument("--seed", type=int, default=1)
+    smb.add_argument("--no-batch", action="store_true", help="leave the batch out (slow)")
+    smb.set_defaults(run=_run_bench_smoother)
     return parser
 
 

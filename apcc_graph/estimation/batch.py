@@ -15,9 +15,10 @@ Correspondences whose Sampson error at the current estimate exceeds ``gate_px`` 
 (gross outliers); the rest enter with a robust loss per correspondence. The solve runs in rounds:
 short baselines first, gated at the chain's estimate; then every gap, re-gated at the previous
 round's solution, until the angles stop moving. Long baselines only enter once the estimate is
-good enough to tell their inliers from their outliers. The initial estimate is
-the paper's chain (:func:`apcc_graph.estimation.chain.chain_estimate`). Marginal standard
-deviations come from ``gtsam.Marginals``.
+good enough to tell their inliers from their outliers. The initial estimate is the fixed-lag
+smoother's (:mod:`apcc_graph.estimation.smoother`, started by the 1-point front end) or, with
+``init="chain"``, the paper's chain (:func:`apcc_graph.estimation.chain.chain_estimate`).
+Marginal standard deviations come from ``gtsam.Marginals``.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ class GraphOptions:
         theta0_sigma: prior standard deviation of the starting configuration (radians).
         limit_sigma: softness of the joint limits (radians).
         loss: robust loss per correspondence (``"huber"``, ``"cauchy"``, ``"none"``).
+        loss_sigmas: the robust loss's threshold in pixel-noise sigmas (``threshold_px``).
         min_baseline: pairs whose camera moved less (metres) are left out (no parallax).
         reuse_inflation: each observation enters about ``2 * len(gaps)`` frame pairs, whose
             residuals share its pixel noise; treating them as independent overcounts the
@@ -71,6 +73,7 @@ class GraphOptions:
     theta0_sigma: float = math.radians(1.0)
     limit_sigma: float = math.radians(1.0)
     loss: str = "huber"
+    loss_sigmas: float = 1.345
     min_baseline: float = 0.002
     reuse_inflation: bool = True
 
@@ -84,6 +87,13 @@ class GraphOptions:
 def reuse_factor(options: GraphOptions) -> float:
     """The pair-sigma inflation ``sqrt(2 * len(gaps))`` (1 without ``reuse_inflation``)."""
     return math.sqrt(2.0 * len(options.gaps)) if options.reuse_inflation else 1.0
+
+
+def loss_scale(options: GraphOptions) -> float:
+    """The robust loss threshold in whitened units: ``options.loss_sigmas`` pixel-noise sigmas
+    (``threshold_px``), whatever the pair-sigma inflation: the m-estimator judges a
+    correspondence against the pixel noise, not against the inflated pair sigma."""
+    return options.loss_sigmas / reuse_factor(options)
 
 
 def angle_key(frame: int, segment: int, n_segments: int) -> int:
@@ -145,7 +155,7 @@ def build_graph(
                 [[angle_key(a, j, n_seg) for j in range(i + 1)] for a, _, _ in pairs],
                 segs, camera.tip_T_cam, _world_T_base(sequence, b),
                 [_world_T_base(sequence, a) for a, _, _ in pairs], [p[1] for p in pairs],
-                [p[2] for p in pairs], sigma, o.loss))
+                [p[2] for p in pairs], sigma, o.loss, loss_scale(o)))
     return graph
 
 
@@ -237,13 +247,20 @@ def batch_estimate(
     round_tolerance: float = math.radians(0.01),
     marginals: bool = True,
     progress: bool = False,
+    init: str = "smoother",
 ) -> Estimate:
     """Optimise all frames and segments jointly.
 
     Args:
         sequence: the sequence (ground truth, if any, is never read).
         theta0: ``(S,)`` starting configuration (radians; default straight).
-        initial: ``(F, S)`` initial angles; default the chain estimate.
+        initial: ``(F, S)`` initial angles; default from ``init``.
+        init: where the initial angles come from when ``initial`` is not given:
+            ``"smoother"`` (default; the fixed-lag smoother, itself started by the 1-point
+            front end) or ``"chain"`` (the paper's chained 1-point estimate). The chain drifts
+            by degrees on long sequences (``apcc-graph bench smoother``) and the batch, which
+            gates correspondences at its initial estimate, then converges to a wrong
+            configuration; the smoother's start avoids that.
         options: how the graph is built (:class:`GraphOptions`).
         max_iterations: Levenberg-Marquardt iterations per round.
         max_rounds: re-gating rounds with every gap (each starts from the previous solution
@@ -257,9 +274,17 @@ def batch_estimate(
         The estimate, ``method = "batch"``.
     """
     options = GraphOptions() if options is None else options
+    if init not in ("smoother", "chain"):
+        raise ValueError(f"init = {init!r}: expected 'smoother' or 'chain'")
     n_seg = sequence.n_segments
     theta0 = np.zeros(n_seg) if theta0 is None else np.asarray(theta0, dtype=float)
-    if initial is None:
+    if initial is None and init == "smoother":
+        from apcc_graph.estimation.smoother import smoother_estimate
+
+        first = smoother_estimate(sequence, theta0=theta0, options=options, uncertainty=False,
+                                  progress=progress)
+        initial, status = first.thetas, first.status
+    elif initial is None:
         chain = chain_estimate(sequence, theta0=theta0, threshold_px=options.threshold_px,
                                progress=progress)
         initial, status = chain.thetas, chain.status
