@@ -55,6 +55,10 @@ FloatArray = NDArray[np.float64]
 
 ROBUST_LOSSES = ("huber", "cauchy", "none")
 _TINY = 1e-300
+_NO_MOTION = 1e-12
+"""Below this Sampson denominator (unit bearings; it scales with the camera's translation in
+metres) a correspondence is treated as showing no motion: residual and Jacobian zero. At round-off
+baselines the ratio would otherwise be 0/0 noise with Jacobians near 1e16."""
 _SLOPE_OUTLIER = 100.0
 """A correspondence whose Sampson slope exceeds this multiple of the pair's median is ill-posed
 (near the epipole the Sampson error's denominator vanishes)."""
@@ -159,7 +163,7 @@ def _sampson_gradient(f_a: FloatArray, f_b: FloatArray,
     num = np.einsum("ni,ni->n", f_a, Efb)
     den2 = np.einsum("ni,ni->n", Efb, Efb) + np.einsum("ni,ni->n", Etfa, Etfa) - 2.0 * num * num
     den = np.sqrt(np.maximum(den2, 0.0))
-    ok = den > _TINY
+    ok = den > _NO_MOTION
     inv = np.where(ok, 1.0 / np.where(ok, den, 1.0), 0.0)
     e = num * inv
     c = (e * inv * inv)[:, None, None]  # n / d^3

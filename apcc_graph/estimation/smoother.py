@@ -12,14 +12,21 @@ The graph is the batch's (:mod:`apcc_graph.estimation.batch`), grown one frame a
   marginalised (online self-calibration).
 
 New frames are initialised by the 1-point front end, segment by segment from the base: the
-prediction (constant angular velocity) is checked against the correspondences with the previous
-frame; when most agree it is refined on them (the RANSAC's local optimisation), otherwise
-:func:`apcc_graph.solvers.one_point_ransac` runs from scratch.
+prediction (constant angular velocity) is checked against the correspondences with the latest
+earlier frame that shares tracks with this one (the previous frame, or the last one before a
+blackout). When at least ``agreement`` of them fall inside the gate the prediction stands and the
+graph refines it; otherwise, or when the prediction shows no parallax to check,
+:func:`apcc_graph.solvers.one_point_ransac` re-initialises the angle from that pair.
+
+Linearisation: by default each epipolar factor is linearised once, at the angles it was built at,
+and enters gtsam as a C++ ``LinearContainerFactor`` (first-estimate Jacobians), so gtsam never
+calls back into Python; ``linearization="relinearize"`` keeps the Python factor for iSAM2 to
+re-linearise instead (5x slower on the benchmark, no more accurate).
 
 Backends: gtsam's ``IncrementalFixedLagSmoother`` (iSAM2, default) or ``BatchFixedLagSmoother``
-(Levenberg-Marquardt over the whole window at every frame). The incremental one re-linearises
-only the factors whose variables moved (Python factors are the cost), so it is the default;
-``apcc-graph bench smoother`` measures both.
+(Levenberg-Marquardt over the whole window at every frame). iSAM2 re-eliminates only the part of
+the window a new frame touches, so it is the default; ``apcc-graph bench smoother`` measures
+both.
 
 Failure modes handled (each has a test):
 
@@ -64,6 +71,8 @@ BACKENDS = ("incremental", "batch")
 _CAL_BASE = gtsam.symbol("a", 0)
 """Angle keys are ``frame * S + segment``, far below any gtsam Symbol key (calibration)."""
 LINEARIZATIONS = ("first-estimate", "relinearize")
+_CHECK_BASELINE = 1e-4
+"""Metres: below this the front end's check has no parallax to judge the prediction by."""
 
 
 @dataclass(frozen=True)
@@ -151,6 +160,16 @@ class FixedLagSmoother:
             swapped in, at most ``rebuilds_per_frame`` per update, largest move first (iSAM2
             backend). This keeps a factor linearised at a poor prediction from holding the
             estimate there.
+        keyframe_every, keyframes: every ``keyframe_every``-th frame becomes a keyframe and
+            the last ``keyframes`` of them stay in the window beyond ``lag`` (their timestamps
+            are renewed); new frames are also paired with every keyframe they share tracks
+            with. Long baselines are what observe the absolute configuration (NOTES.md
+            section 5); keyframes give them at the cost of more pairs per frame and of a
+            window gtsam must re-eliminate whole at every update. Off by default
+            (``keyframes=0``): on three 300-frame room-scene sequences, 6 keyframes every 10
+            frames cut the RMS on some segments and raised it on others, at 4x the update time.
+        agreement: fraction of the correspondences with the latest frame that must fall inside
+            the gate for the prediction to stand (otherwise the 1-point RANSAC re-initialises).
         rebuilds_per_frame: see ``rebuild_threshold``; 0 (default) disables rebuilding: on
             the benchmark it cost 5 ms per frame for a mixed effect on accuracy.
         limit_margin: soft joint limits are added to frames whose initial angle is within
@@ -183,6 +202,9 @@ class FixedLagSmoother:
         linearization: str = "first-estimate",
         rebuild_threshold: float = math.radians(0.1),
         rebuilds_per_frame: int = 0,
+        keyframe_every: int = 10,
+        keyframes: int = 0,
+        agreement: float = 0.5,
         seed: int = 0,
     ) -> None:
         if not isinstance(robot, Robot):
@@ -217,6 +239,16 @@ class FixedLagSmoother:
         self.linearization = linearization
         self.rebuild_threshold = rebuild_threshold
         self.rebuilds_per_frame = int(rebuilds_per_frame)
+        if int(keyframe_every) < 1 or int(keyframes) < 0:
+            raise ValueError(f"FixedLagSmoother: keyframe_every = {keyframe_every!r} and "
+                             f"keyframes = {keyframes!r}: expected >= 1 and >= 0")
+        if not 0.0 <= agreement <= 1.0:
+            raise ValueError(f"FixedLagSmoother.agreement = {agreement!r}: expected a fraction "
+                             "in [0, 1]")
+        self.agreement = float(agreement)
+        self.keyframe_every = int(keyframe_every)
+        self.n_keyframes = int(keyframes)
+        self._keyframes: deque[_Frame] = deque()
         self._active: dict[tuple[int, int], _Active] = {}
         self._pending: list[tuple[int, _Active]] = []  # (position in the new graph, entry)
         self._rebuilds = 0
@@ -297,6 +329,10 @@ class FixedLagSmoother:
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         keys = [angle_key(f, i, n_seg) for i in range(n_seg)]
+        for kf in self._keyframes:  # keyframes stay: renew their timestamps
+            kf.stamp = self._window[kf.index] = stamp
+            for i in range(n_seg):
+                stamps.insert((angle_key(kf.index, i, n_seg), stamp))
         for i, key in enumerate(keys):
             values.insert(key, np.array([thetas[i]]))
             stamps.insert((key, stamp))
@@ -326,6 +362,10 @@ class FixedLagSmoother:
         self._window[f] = stamp
         self._times[f] = t
         self._status[f] = status
+        if self.n_keyframes and f % self.keyframe_every == 0 and f in self._thetas:
+            self._keyframes.append(frame)
+            while len(self._keyframes) > self.n_keyframes:
+                self._keyframes.popleft()  # no longer renewed: leaves with the lag
         self._count += 1
         return self._frame_estimate(f, t, status)
 
@@ -433,19 +473,23 @@ class FixedLagSmoother:
                 status[i] = "no-camera" if camera is None else "no-tracks"
                 pose = pose @ link
                 continue
-            pairs, gap_one = self._pairs(i, frame, by_index, (pose @ link @ camera.tip_T_cam))
+            pairs, latest = self._pairs(i, frame, by_index, (pose @ link @ camera.tip_T_cam))
             factor = self._factor(i, frame, pairs, thetas) if pairs else None
-            # The front end's check: most correspondences with the previous frame fit the
-            # prediction. Without parallax at the prediction there is nothing to check: ask
-            # the 1-point RANSAC (which also recognises a camera that did not move).
-            if gap_one is None:
+            # The front end's check: the correspondences with the latest frame sharing tracks
+            # fit the prediction. Without parallax at the prediction there is nothing to check:
+            # ask the 1-point RANSAC (which also recognises a camera that did not move).
+            moved = latest is not None and np.linalg.norm(
+                (pose @ link @ camera.tip_T_cam)[:3, 3] - latest[0].cam_positions[i]
+            ) >= max(self.options.min_baseline, _CHECK_BASELINE)
+            if latest is None:
                 agree = True
-            elif factor is None or not any(p is gap_one for p in pairs):
+            elif factor is None or not moved or not any(p is latest for p in pairs):
                 agree = False
             else:
-                agree = factor.kept[[p is gap_one for p in pairs].index(True)] >= 0.5
+                agree = (factor.kept[[p is latest for p in pairs].index(True)]
+                         >= self.agreement)
             if not agree:
-                if self._relocate(i, seg, camera, gap_one, pose, thetas, status):
+                if self._relocate(i, seg, camera, latest, pose, thetas, status):
                     link = apcc_transform_scalar(float(thetas[i]), seg)[0]
                     pairs, _ = self._pairs(i, frame, by_index,
                                            (pose @ link @ camera.tip_T_cam))
@@ -473,27 +517,47 @@ class FixedLagSmoother:
     def _pairs(self, i: int, frame: _Frame, by_index: dict[int, _Frame],
                world_T_cam: FloatArray) -> tuple[list, tuple | None]:  # noqa: D417
         """Earlier frames that camera i can be paired with: ``[(frame, f_a, f_b)]`` (enough
-        shared tracks and parallax), and the previous frame's entry whatever its parallax (or
-        None) for the front end's check."""
+        shared tracks and parallax), and, for the front end's check, the latest earlier frame
+        that shares enough tracks whatever its parallax (the previous frame, or the last one
+        before a gap in the tracks), or None."""
         o = self.options
-        pairs, gap_one = [], None
+        pairs = []
         position = world_T_cam[:3, 3]
-        for gap in o.gaps:
-            old = by_index.get(frame.index - gap)
+        candidates = [(gap, by_index.get(frame.index - gap)) for gap in o.gaps]
+        near = {frame.index - gap for gap in o.gaps}
+        candidates += [(frame.index - kf.index, kf) for kf in self._keyframes
+                       if kf.index not in near and kf.index < frame.index]
+        for _, old in candidates:
             if old is None or i not in old.ids or old.index not in self._thetas:
                 continue
             if frame.stamp - old.stamp >= self.lag:  # marginalised in this update
                 continue
-            _, ia, ib = np.intersect1d(old.ids[i], frame.ids[i], assume_unique=True,
-                                       return_indices=True)
-            if len(ia) < o.min_shared:
+            entry = self._shared(i, old, frame)
+            if entry is None:
                 continue
-            entry = (old, old.bearings[i][ia], frame.bearings[i][ib])
-            if gap == 1:
-                gap_one = entry
             if np.linalg.norm(position - old.cam_positions[i]) >= o.min_baseline:
                 pairs.append(entry)  # else no parallax: the motion prior carries it
-        return pairs, gap_one
+        latest = None
+        for old in reversed(self._history):
+            if old.index >= frame.index or old.index not in self._thetas:
+                continue
+            if frame.stamp - old.stamp >= self.lag:
+                break
+            latest = next((p for p in pairs if p[0] is old), None) or self._shared(i, old,
+                                                                                  frame)
+            if latest is not None:
+                break
+        return pairs, latest
+
+    def _shared(self, i: int, old: _Frame, frame: _Frame) -> tuple | None:
+        """``(old, f_a, f_b)`` over the tracks camera i saw in both frames, if enough."""
+        if i not in old.ids:
+            return None
+        _, ia, ib = np.intersect1d(old.ids[i], frame.ids[i], assume_unique=True,
+                                   return_indices=True)
+        if len(ia) < self.options.min_shared:
+            return None
+        return (old, old.bearings[i][ia], frame.bearings[i][ib])
 
     def _factor(self, i: int, frame: _Frame, pairs: list,
                 thetas: FloatArray) -> EpipolarFrameFactor | None:
@@ -536,12 +600,12 @@ class FixedLagSmoother:
             return seg.k if chr(symbol.chr()) == "k" else seg.delta_max
         return float(self._smoother.calculateEstimate().atVector(key)[0])
 
-    def _relocate(self, i: int, seg, camera, gap_one: tuple | None,  # noqa: ANN001
+    def _relocate(self, i: int, seg, camera, latest: tuple | None,  # noqa: ANN001
                   pose: FloatArray, thetas: FloatArray, status: NDArray[np.str_]) -> bool:
-        """1-point RANSAC against the previous frame, from scratch; True if it moved."""
-        if gap_one is None:
+        """1-point RANSAC against the latest frame sharing tracks; True if it moved."""
+        if latest is None:
             return False
-        old, f_a, f_b = gap_one
+        old, f_a, f_b = latest
         prev = self._thetas[old.index]
         segments = self._segments()
         base_a = old.base
@@ -632,6 +696,7 @@ class FixedLagSmoother:
         o = self.options
         self._smoother = self._new_smoother()
         self._active.clear()
+        self._keyframes.clear()
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
@@ -666,8 +731,10 @@ class FixedLagSmoother:
         if everything:
             wanted = set(self._window) | {f}
         else:
-            wanted = {f, f - 1} | {f + 1 - gap for gap in self.options.gaps}
+            wanted = ({f, f - 1} | {f + 1 - gap for gap in self.options.gaps}
+                      | {kf.index for kf in self._keyframes})
         by_index = {h.index: h for h in self._history}
+        by_index.update({kf.index: kf for kf in self._keyframes})
         for g in sorted(wanted):
             if g < 0 or (g not in self._window and g != f):
                 continue
@@ -689,8 +756,8 @@ class FixedLagSmoother:
             try:
                 cov = self._smoother.marginalCovariance(angle_key(g, i, n_seg))
                 out[i] = math.sqrt(max(float(cov[0, 0]), 0.0))
-            except RuntimeError:
-                pass
+            except (RuntimeError, IndexError, ValueError):
+                pass  # not in gtsam's Bayes tree (an unconstrained variable): unknown, NaN
         return out
 
     def _calibration_now(self) -> FloatArray | None:
