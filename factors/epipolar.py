@@ -409,9 +409,17 @@ class EpipolarFrameFactor:
         self.mask: NDArray[np.bool_] | None = None if gate is not None else np.ones(
             self.n_rows, dtype=bool)
         self._memo: dict[str, object] = {}
-        dim = len(self.keys) + 1 if compress else self.n_rows
-        self.factor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(dim), self.keys,
-                                         self._error)
+        self.dim = len(self.keys) + 1 if compress else self.n_rows
+
+    @property
+    def factor(self) -> gtsam.CustomFactor:
+        """A ``gtsam.CustomFactor`` evaluating this factor (a new wrapper per access).
+
+        The wrapper holds this object, never the reverse: a reference cycle through gtsam's C++
+        side would be invisible to Python's garbage collector and leak every factor.
+        """
+        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(self.dim), self.keys,
+                                  self._error)
 
     @property
     def kept(self) -> FloatArray:

@@ -27,3 +27,36 @@ def test_bench_accuracy_small_run(capsys) -> None:
     # Noise-free trials are exact; noisy ones have a finite efficiency figure.
     assert all(float(r[2]) < 1e-6 for r in rows if r[1] == "0.0px")
     assert all(r[-2] != "-" for r in rows if r[1] != "0.0px")
+
+
+def test_bench_smoother_small_run(capsys) -> None:
+    assert main(["bench", "smoother", "--frames", "40", "--long-frames", "400",
+                 "--memory-frames", "1000", "--no-batch"]) == 0
+    text = capsys.readouterr().out
+    lines = text.splitlines()
+    # Accuracy: chain and smoother rows for both outlier levels; the chain is the reference.
+    rows = {(ln.split()[0] + ln.split()[1], ln.split()[2]): ln.split()
+            for ln in lines if re.match(r"\s+(10|30)% outliers\s+(chain|smoother)\s", ln)}
+    assert set(rows) == {("10%outliers", "chain"), ("10%outliers", "smoother"),
+                         ("30%outliers", "chain"), ("30%outliers", "smoother")}
+    for (case, method), cells in rows.items():
+        rms = [float(v) for v in cells[3:6]]
+        ratio = [float(v) for v in cells[7:10]]
+        chain = [float(v) for v in rows[(case, "chain")][3:6]]
+        assert all(v > 0 for v in rms)
+        # The ratio column is this method's RMS over the chain's (printed values rounded).
+        for r, c, q in zip(rms, chain, ratio, strict=True):
+            assert abs(r / c - q) < 0.01 + 0.0006 * r / c**2
+    # Drift rows: late / early is the ratio of the two printed windows.
+    for method in ("smoother", "chain"):
+        cells = next(ln.split() for ln in lines if ln.strip().startswith(method + " ")
+                     and "outliers" not in ln and len(ln.split()) == 4)
+        early, late, ratio = (float(v) for v in cells[1:])
+        assert abs(late / early - ratio) < 0.011
+    # Speed of both gtsam backends, and the memory and self-calibration sections.
+    assert re.search(r"incremental \(iSAM2\)\s+400\s+[\d.]+ms\s+[\d.]+ms", text)
+    assert re.search(r"batch \(LM over the window\)\s+150\s+[\d.]+ms", text)
+    assert re.search(r"after 1,000 frames\s+[\d.]+ MB; after 1,000 frames\s+[\d.]+ MB; "
+                     r"ratio 1\.\d{3}", text)
+    assert text.count("segment ") >= 3 and "self-calibration" in text
+    assert re.search(r"segment 1: k 0\.\d{4} \(true 0\.2500\)", text)

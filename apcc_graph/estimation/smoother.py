@@ -408,6 +408,9 @@ class FixedLagSmoother:
             self._final[g] = SmootherFrame(g, self._times.pop(g), thetas, sigmas,
                                            self._status.pop(g))
             self._thetas.pop(g, None)
+        gone = set(leaving)
+        for key in [k for k, e in self._active.items() if gone.intersection(e.frames.tolist())]:
+            del self._active[key]  # absorbed into the marginal: can no longer be swapped
 
     def _add_calibration(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
         sk, sd = self.calibration_sigmas
@@ -503,11 +506,13 @@ class FixedLagSmoother:
                 if status[i] == "ok":
                     status[i] = "no-consensus"
                 continue
-            if self.linearization == "first-estimate":
+            if self.linearization == "first-estimate" and self.rebuilds_per_frame > 0:
                 self._pending.append((graph.size(), _Active(
                     f, i, frame, pairs, np.array([p[0].index for p in pairs] + [f]),
                     np.array([self._thetas[p[0].index][: i + 1] for p in pairs]
                              + [thetas[: i + 1]]))))
+                graph.add(factor.linear_factor(self._linearization_point(factor, f, thetas)))
+            elif self.linearization == "first-estimate":
                 graph.add(factor.linear_factor(self._linearization_point(factor, f, thetas)))
             else:
                 graph.add(factor.factor)
