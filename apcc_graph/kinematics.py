@@ -436,52 +436,18 @@ def apcc_transform_scalar_calibration(
 
     Bottom rows of the three derivatives are zero.
     """
-    length = segment.length
+    T, dT = apcc_transform_scalar(theta, segment, psi)
     c = segment.link_ratio
-    l1, l2 = segment.l1, segment.l2
-    half = 0.5 * theta
-    s, h = math.sin(half), math.cos(half)
+    s, h = math.sin(0.5 * theta), math.cos(0.5 * theta)
     root = math.sqrt(1.0 - (c * s) ** 2)
-    chord = l1 * root + l2 * h
-    dchord = -0.5 * s * l2 * (c * h / root + 1.0)
-    rate = 1.0 - segment.deviation_rate
-    px, pz = chord * s, chord * h
-    dpx, dpz = 0.5 * h * chord + s * dchord, -0.5 * s * chord + h * dchord
-    beta = theta * rate
-    cb, sb = math.cos(beta), math.sin(beta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    vb = 1.0 - cb
-    T = np.array([
-        [1.0 - vb * cp * cp, -vb * sp * cp, sb * cp, cp * px],
-        [-vb * sp * cp, 1.0 - vb * sp * sp, sb * sp, sp * px],
-        [-sb * cp, -sb * sp, cb, pz],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
-    r = rate
-    dT = np.array([
-        [-r * sb * cp * cp, -r * sb * sp * cp, r * cb * cp, cp * dpx],
-        [-r * sb * sp * cp, -r * sb * sp * sp, r * cb * sp, sp * dpx],
-        [-r * cb * cp, -r * cb * sp, -r * sb, dpz],
-        [0.0, 0.0, 0.0, 0.0],
-    ])
     # d/dk: translation only.
-    dchord_k = length * (h - (1.0 + c * s * s) / root)
-    dpx_k = s * dchord_k
+    dchord_k = segment.length * (h - (1.0 + c * s * s) / root)
     dT_dk = np.zeros((4, 4))
-    dT_dk[0, 3] = cp * dpx_k
-    dT_dk[1, 3] = sp * dpx_k
+    dT_dk[0, 3] = math.cos(psi) * s * dchord_k
+    dT_dk[1, 3] = math.sin(psi) * s * dchord_k
     dT_dk[2, 3] = h * dchord_k
-    # d/ddelta_max: rotation only, dR/dbeta times dbeta/ddelta_max = -theta / theta_max.
-    # (Sparse matrices are filled entry by entry: cheaper than np.array on nested lists.)
-    q = -theta / segment.theta_max
-    qsb, qcb = q * sb, q * cb
+    # d/ddelta_max: rotation only. dT/dtheta's rotation block is dR/dbeta times
+    # dbeta/dtheta = 1 - delta_max/theta_max (> 0); swap that factor for -theta/theta_max.
     dT_dd = np.zeros((4, 4))
-    dT_dd[0, 0] = -qsb * cp * cp
-    dT_dd[0, 1] = dT_dd[1, 0] = -qsb * sp * cp
-    dT_dd[0, 2] = qcb * cp
-    dT_dd[1, 1] = -qsb * sp * sp
-    dT_dd[1, 2] = qcb * sp
-    dT_dd[2, 0] = -qcb * cp
-    dT_dd[2, 1] = -qcb * sp
-    dT_dd[2, 2] = -qsb
+    dT_dd[:3, :3] = dT[:3, :3] * (-theta / segment.theta_max / (1.0 - segment.deviation_rate))
     return T, dT, dT_dk, dT_dd

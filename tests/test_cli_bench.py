@@ -39,7 +39,7 @@ def test_bench_smoother_small_run(capsys) -> None:
             for ln in lines if re.match(r"\s+(10|30)% outliers\s+(chain|smoother)\s", ln)}
     assert set(rows) == {("10%outliers", "chain"), ("10%outliers", "smoother"),
                          ("30%outliers", "chain"), ("30%outliers", "smoother")}
-    for (case, method), cells in rows.items():
+    for (case, _method), cells in rows.items():
         rms = [float(v) for v in cells[3:6]]
         ratio = [float(v) for v in cells[7:10]]
         chain = [float(v) for v in rows[(case, "chain")][3:6]]

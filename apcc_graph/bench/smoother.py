@@ -55,6 +55,7 @@ class AccuracyRow:
     method: str
     rms: np.ndarray
     seconds: float
+    recoveries: int = 0  # gtsam failures the smoother caught
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,7 @@ class DriftRow:
     method: str
     early: float  # frames 100-400
     late: float  # the last 300 frames
+    recoveries: int = 0
 
 
 @dataclass(frozen=True)
@@ -84,6 +86,7 @@ class CalibrationRow:
     rms: np.ndarray  # radians, per segment
     k: np.ndarray | None  # recovered k per segment
     delta_max: np.ndarray | None  # recovered delta_max per segment (radians)
+    recoveries: int = 0
 
 
 @dataclass(frozen=True)
@@ -161,9 +164,9 @@ def run_smoother_benchmark(
         accuracy.append(AccuracyRow(case, "chain", _rms(chain.thetas, seq.thetas),
                                     time.perf_counter() - start))
         start = time.perf_counter()
-        thetas, _, _ = _run_smoother(seq, progress=progress)
+        thetas, _, sm = _run_smoother(seq, progress=progress)
         accuracy.append(AccuracyRow(case, "smoother", _rms(thetas, seq.thetas),
-                                    time.perf_counter() - start))
+                                    time.perf_counter() - start, sm.recoveries))
         if batch:
             start = time.perf_counter()
             est = batch_estimate(seq, theta0=seq.thetas[0], initial=thetas,
@@ -174,14 +177,15 @@ def run_smoother_benchmark(
     # Drift and speed over a long run.
     seq = _sequence(robot, long_frames, 0.1, seed + 1)
     assert seq.thetas is not None
-    thetas, times, _ = _run_smoother(seq, progress=progress)
+    thetas, times, long_run = _run_smoother(seq, progress=progress)
     chain = chain_estimate(seq, theta0=seq.thetas[0], progress=progress)
     early, late = slice(100, 400), slice(long_frames - 300, long_frames)
 
     def window_rms(est: np.ndarray, rows: slice) -> float:
         return float(np.sqrt(np.mean((est[rows] - seq.thetas[rows]) ** 2)))
 
-    drift = (DriftRow("smoother", window_rms(thetas, early), window_rms(thetas, late)),
+    drift = (DriftRow("smoother", window_rms(thetas, early), window_rms(thetas, late),
+                      long_run.recoveries),
              DriftRow("chain", window_rms(chain.thetas, early), window_rms(chain.thetas, late)))
     speed = [SpeedRow("incremental (iSAM2)", long_frames, float(np.median(times)),
                       float(np.percentile(times, 95)))]
@@ -211,18 +215,19 @@ def run_smoother_benchmark(
     assert seq.thetas is not None
     true_robot = Robot(list(true_segments), list(robot.cameras))
     calibration = []
-    thetas, _, _ = _run_smoother(seq, robot=true_robot, progress=progress)
-    calibration.append(CalibrationRow("true model", _rms(thetas, seq.thetas), None, None))
-    thetas, _, _ = _run_smoother(seq, progress=progress)
+    thetas, _, sm = _run_smoother(seq, robot=true_robot, progress=progress)
+    calibration.append(CalibrationRow("true model", _rms(thetas, seq.thetas), None, None,
+                                      sm.recoveries))
+    thetas, _, sm = _run_smoother(seq, progress=progress)
     calibration.append(CalibrationRow("robot file (k -0.03, delta_max -3 deg)",
-                                      _rms(thetas, seq.thetas), None, None))
+                                      _rms(thetas, seq.thetas), None, None, sm.recoveries))
     thetas, _, sm = _run_smoother(seq, progress=progress, calibrate=True)
     cal = sm.calibration()
     assert cal is not None
     calibration.append(CalibrationRow(
         "robot file + self-calibration", _rms(thetas, seq.thetas),
         np.array([cal[i][0] for i in range(robot.n_segments)]),
-        np.array([cal[i][1] for i in range(robot.n_segments)])))
+        np.array([cal[i][1] for i in range(robot.n_segments)]), sm.recoveries))
     return SmootherBenchmark(
         frames=frames, tracks_per_camera=float(np.mean(tracks)), accuracy=tuple(accuracy),
         long_frames=long_frames, drift=drift, speed=tuple(speed), memory_frames=memory_frames,
@@ -237,7 +242,7 @@ def format_smoother_benchmark(r: SmootherBenchmark) -> str:
            f"per camera and frame, 1 px noise, {FPS:.0f} fps, lag {LAG:g} s", ""]
     out.append(f"accuracy over {r.frames} frames, RMS per segment (deg)")
     out.append(f"  {'case':<14} {'method':<9} {'seg 1':>7} {'seg 2':>7} {'seg 3':>7} "
-               f"{'time':>8}   ratio to chain")
+               f"{'time':>8}   ratio to chain    recoveries")
     by_case: dict[str, dict[str, AccuracyRow]] = {}
     for row in r.accuracy:
         by_case.setdefault(row.case, {})[row.method] = row
@@ -247,7 +252,8 @@ def format_smoother_benchmark(r: SmootherBenchmark) -> str:
             out.append(f"  {case:<14} {method:<9} "
                        + " ".join(f"{deg(v):7.3f}" for v in row.rms)
                        + f" {row.seconds:7.1f}s   "
-                       + " ".join(f"{v:5.2f}" for v in ratio))
+                       + " ".join(f"{v:5.2f}" for v in ratio)
+                       + (f"  {row.recoveries:>6}" if method == "smoother" else ""))
         if "batch" in rows:
             ratio = rows["batch"].rms / rows["smoother"].rms
             out.append(f"  {case:<14} batch / smoother: "
@@ -257,6 +263,7 @@ def format_smoother_benchmark(r: SmootherBenchmark) -> str:
     for row in r.drift:
         out.append(f"  {row.method:<9} {deg(row.early):15.3f} {deg(row.late):10.3f} "
                    f"{row.late / row.early:13.2f}")
+    out.append(f"  (smoother recoveries from gtsam failures: {r.drift[0].recoveries})")
     out += ["", "speed: FixedLagSmoother.update per frame, 3 cameras, lag 1 s",
             f"  {'backend':<28} {'frames':>7} {'median':>10} {'p95':>10} {'x real time':>12}"]
     for row in r.speed:
@@ -272,7 +279,8 @@ def format_smoother_benchmark(r: SmootherBenchmark) -> str:
     base = r.calibration[0].rms
     for row in r.calibration:
         out.append(f"  {row.case:<40} " + " ".join(f"{deg(v):7.3f}" for v in row.rms)
-                   + "  " + " ".join(f"{v:5.2f}" for v in row.rms / base))
+                   + "  " + " ".join(f"{v:5.2f}" for v in row.rms / base)
+                   + f"   recoveries {row.recoveries}")
     last = r.calibration[-1]
     if last.k is not None and last.delta_max is not None:
         for i, seg in enumerate(r.true_segments):

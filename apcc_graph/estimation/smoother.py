@@ -412,12 +412,16 @@ class FixedLagSmoother:
         for key in [k for k, e in self._active.items() if gone.intersection(e.frames.tolist())]:
             del self._active[key]  # absorbed into the marginal: can no longer be swapped
 
-    def _add_calibration(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    def _add_calibration(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                         start: FloatArray | None = None) -> None:
+        """k and delta_max variables with priors around the robot's values, starting at
+        ``start`` (``(S, 2)``, after a restart) or at the robot's values."""
         sk, sd = self.calibration_sigmas
         for i, seg in enumerate(self.robot.segments):
             k_key, d_key = _calibration_keys(i)
-            values.insert(k_key, np.array([seg.k]))
-            values.insert(d_key, np.array([seg.delta_max]))
+            k0, d0 = (seg.k, seg.delta_max) if start is None else start[i]
+            values.insert(k_key, np.array([k0]))
+            values.insert(d_key, np.array([d0]))
             graph.add(angle_prior(k_key, seg.k, sk))
             graph.add(angle_prior(d_key, seg.delta_max, sd))
 
@@ -636,6 +640,12 @@ class FixedLagSmoother:
         try:
             self._smoother.update(graph, values, stamps, remove or [])
             self._register(pending)
+        except IndexError:
+            # gtsam's marginalisation helper lost track of a variable's clique (known
+            # IncrementalFixedLagSmoother failures): the state cannot be trusted, start afresh.
+            self._recoveries += 1
+            status[:] = "recovered"
+            self._restart(f, thetas)
         except RuntimeError:
             self._recoveries += 1
             status[:] = "recovered"
@@ -646,7 +656,7 @@ class FixedLagSmoother:
             try:
                 self._smoother.update(repair, gtsam.Values(),
                                       gtsam.FixedLagSmootherKeyTimestampMap())
-            except RuntimeError:
+            except (RuntimeError, IndexError):
                 self._restart(f, thetas)
         self._read_window()
 
@@ -699,6 +709,12 @@ class FixedLagSmoother:
         """A fresh smoother anchored at the last estimates (the window's history is lost)."""
         n_seg = self.robot.n_segments
         o = self.options
+        calibration = None
+        if self.calibrate:
+            try:
+                calibration = self._calibration_now()
+            except (RuntimeError, IndexError):
+                calibration = None  # the broken state cannot say: back to the robot's values
         self._smoother = self._new_smoother()
         self._active.clear()
         self._keyframes.clear()
@@ -713,7 +729,7 @@ class FixedLagSmoother:
             graph.add(angle_prior(key, thetas[i], self.loose_sigma))
             graph.add(joint_limit_factor(key, self.robot.segments[i].theta_max, o.limit_sigma))
         if self.calibrate:
-            self._add_calibration(graph, values)
+            self._add_calibration(graph, values, calibration)
             for i in range(n_seg):
                 for key in _calibration_keys(i):
                     stamps.insert((key, t))
