@@ -572,3 +572,47 @@ def test_self_calibration_moves_towards_the_true_segments(robot: Robot) -> None:
     assert np.all(np.abs(k - k_true) < 0.025)
     assert np.sum(np.abs(k - k_true)) < 0.06
     assert FixedLagSmoother(robot).calibration() is None
+
+
+# ----------------------------------------------------- gtsam losing a clique (IndexError)
+class _FailOnce:
+    """Wraps a gtsam smoother; its ``update`` raises the given error once, at one call."""
+
+    def __init__(self, inner, at: int, error: Exception) -> None:  # noqa: ANN001
+        self.inner, self.at, self.error, self.calls = inner, at, error, 0
+
+    def update(self, *args):  # noqa: ANN002, ANN201
+        self.calls += 1
+        if self.calls == self.at:
+            raise self.error
+        return self.inner.update(*args)
+
+    def __getattr__(self, name: str):  # noqa: ANN204
+        return getattr(self.inner, name)
+
+
+@pytest.mark.parametrize("calibrate", [False, True])
+def test_marginalisation_index_error_restarts_the_smoother(seq60: Sequence,
+                                                           calibrate: bool) -> None:
+    """gtsam's marginalisation helper can lose a variable's clique and raise IndexError (seen in
+    the self-calibration benchmark); the smoother restarts from its last estimate and goes on."""
+    smoother = FixedLagSmoother(seq60.robot, theta0=seq60.thetas[0], calibrate=calibrate)
+    for f in range(30):
+        smoother.update(seq60.frame(f))
+    before = smoother.calibration()
+    smoother._smoother = _FailOnce(smoother._smoother, 1, IndexError("no clique"))
+    out = smoother.update(seq60.frame(30))
+    assert smoother.recoveries == 1
+    assert list(out.status) == ["recovered"] * 3
+    filtered = [smoother.update(seq60.frame(f)) for f in range(31, 60)]
+    final = smoother.finish()
+    assert len(final) == 60 and [fr.frame for fr in final] == list(range(60))
+    # Frames before the failure keep their estimates; the stream keeps tracking after it.
+    assert np.all(rms(thetas(final[:30]), seq60.thetas[:30]) < 0.5)  # measured 0.35 at most
+    assert np.all(rms(thetas(filtered[-10:]), seq60.thetas[-10:]) < 0.6)
+    assert all(list(fr.status) == ["ok"] * 3 for fr in filtered[-10:])
+    if calibrate:
+        after = smoother.calibration()
+        # The restart starts from the calibration reached so far, not the robot file's.
+        assert before is not None and after is not None
+        assert abs(after[0][0] - before[0][0]) < 0.02
