@@ -482,19 +482,26 @@ class FixedLagSmoother:
                 continue
             pairs, latest = self._pairs(i, frame, by_index, (pose @ link @ camera.tip_T_cam))
             factor = self._factor(i, frame, pairs, thetas) if pairs else None
-            # The front end's check: the correspondences with the latest frame sharing tracks
-            # fit the prediction. Without parallax at the prediction there is nothing to check:
-            # ask the 1-point RANSAC (which also recognises a camera that did not move).
-            moved = latest is not None and np.linalg.norm(
-                (pose @ link @ camera.tip_T_cam)[:3, 3] - latest[0].cam_positions[i]
-            ) >= max(self.options.min_baseline, _CHECK_BASELINE)
+            # The front end's check: the correspondences of the newest pair fit the prediction.
+            # Without parallax at the prediction there is nothing to check: ask the 1-point
+            # RANSAC against the latest frame sharing tracks (which also recognises a camera
+            # that did not move).
+            here = (pose @ link @ camera.tip_T_cam)[:3, 3]
+            checkable = [k for k, p in enumerate(pairs) if np.linalg.norm(
+                here - p[0].cam_positions[i]) >= _CHECK_BASELINE]
             if latest is None:
                 agree = True
-            elif factor is None or not moved or not any(p is latest for p in pairs):
+            elif factor is None or not checkable:
                 agree = False
+            elif any(pairs[k] is latest for k in checkable):
+                agree = factor.kept[next(k for k in checkable if pairs[k] is latest)] >= (
+                    self.agreement)
+            elif latest[0].index == frame.index - 1:
+                # A slow camera: the previous frame lacks parallax, an older pair has it.
+                newest = max(checkable, key=lambda k: pairs[k][0].index)
+                agree = factor.kept[newest] >= self.agreement
             else:
-                agree = (factor.kept[[p is latest for p in pairs].index(True)]
-                         >= self.agreement)
+                agree = False  # tracks resume after a gap: re-initialise from scratch
             if not agree:
                 if self._relocate(i, seg, camera, latest, pose, thetas, status):
                     link = apcc_transform_scalar(float(thetas[i]), seg)[0]
