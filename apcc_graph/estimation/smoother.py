@@ -38,7 +38,11 @@ Failure modes handled (each has a test):
 - gtsam's indeterminate-system exception: caught; the update is repaired by weak priors on the
   new frame's angles, and if that fails too the smoother restarts from its last estimate;
 - marginalising a variable that only has a prior: every frame is linked to the previous one by
-  the motion prior (or the weak prior above), and a test marginalises such variables.
+  the motion prior (or the weak prior above), and a test marginalises such variables;
+- gtsam's marginalisation helper losing a variable's clique (``IndexError``, seen with the
+  self-calibration variables): the smoother restarts from its last estimate;
+- tracks resuming after a blackout: the front end re-initialises from the last frame that
+  shares tracks instead of trusting the extrapolated prediction.
 
 Frames leaving the window keep the estimate (and marginal sigma) of the last update in which they
 were inside it; :meth:`FixedLagSmoother.finish` returns every frame's final estimate.
