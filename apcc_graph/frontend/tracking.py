@@ -1,0 +1,176 @@
+"""Feature tracks from tip-camera images: Shi-Tomasi corners followed by pyramidal Lucas-Kanade.
+
+Per camera, frame by frame (:class:`KLTTracker`):
+
+1. the live tracks are followed from the previous image into the new one with
+   ``cv2.calcOpticalFlowPyrLK`` and back again (forward-backward check): a track survives when it
+   was found both ways, its round trip ends within ``fb_threshold`` pixels of where it started,
+   and it stays inside the image (``border`` pixels from the edge);
+2. where tracks have thinned out (fewer than ``min_tracks``), new corners are detected with
+   ``cv2.goodFeaturesToTrack`` away from the surviving ones (``min_distance`` pixels) and start new
+   tracks with fresh ids.
+
+Pixels follow OpenCV: ``(u, v)`` with the origin at the top-left pixel's centre. Track ids are
+non-negative and never reused within one tracker, so the output is the ``Tracks`` of the
+sequence format (``tracks/cam_<i>.csv``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.sequence import Tracks
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """Parameters of :class:`KLTTracker` (pixels unless stated).
+
+    Attributes:
+        max_tracks: corners detected at most per image.
+        min_tracks: below this many live tracks, new corners are detected.
+        quality: ``goodFeaturesToTrack`` quality level (fraction of the best corner's score).
+        min_distance: minimum distance between corners (and to live tracks).
+        window: Lucas-Kanade window size.
+        levels: pyramid levels above the full image.
+        fb_threshold: largest forward-backward round-trip error of a surviving track.
+        border: tracks closer than this to the image edge end.
+    """
+
+    max_tracks: int = 300
+    min_tracks: int = 150
+    quality: float = 0.01
+    min_distance: float = 10.0
+    window: int = 21
+    levels: int = 3
+    fb_threshold: float = 0.5
+    border: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.min_tracks <= self.max_tracks:
+            raise ValueError(f"TrackerOptions: min_tracks = {self.min_tracks}, max_tracks = "
+                             f"{self.max_tracks}: expected 0 < min_tracks <= max_tracks")
+        if self.window < 3 or self.window % 2 == 0:
+            raise ValueError(f"TrackerOptions.window = {self.window}: expected an odd size >= 3")
+        if not (self.fb_threshold > 0 and self.min_distance > 0 and 0 < self.quality < 1
+                and self.levels >= 0 and self.border >= 0):
+            raise ValueError("TrackerOptions: expected fb_threshold > 0, min_distance > 0, "
+                             "0 < quality < 1, levels >= 0, border >= 0")
+
+
+def _gray(image: NDArray, shape: tuple[int, int] | None, where: str) -> NDArray[np.uint8]:
+    """An 8-bit grey image, checked against the expected ``(height, width)``."""
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3
+                             else cv2.COLOR_BGRA2GRAY)
+    if image.ndim != 2:
+        raise ValueError(f"{where}: image of shape {image.shape}: expected (H, W) grey or "
+                         "(H, W, 3) colour")
+    if shape is not None and image.shape != shape:
+        raise ValueError(f"{where}: image is {image.shape[1]}x{image.shape[0]} pixels, expected "
+                         f"{shape[1]}x{shape[0]} (the camera's width x height)")
+    if image.dtype != np.uint8:
+        if np.issubdtype(image.dtype, np.floating) and image.max(initial=0.0) <= 1.0:
+            image = image * 255.0
+        image = np.clip(image, 0, 255).astype(np.uint8)
+    return image
+
+
+class KLTTracker:
+    """Streaming tracker of one camera: :meth:`update` with each image, in order.
+
+    Args:
+        size: ``(width, height)`` the images must have (the camera's), or ``None`` to take the
+            first image's.
+        options: tracker parameters.
+    """
+
+    def __init__(self, size: tuple[int, int] | None = None,
+                 options: TrackerOptions | None = None) -> None:
+        self.options = TrackerOptions() if options is None else options
+        self._shape = None if size is None else (int(size[1]), int(size[0]))
+        self._previous: NDArray[np.uint8] | None = None
+        self._uv = np.zeros((0, 2), dtype=np.float32)
+        self._ids = np.zeros(0, dtype=np.int64)
+        self._next_id = 0
+        self._frame = 0
+        o = self.options
+        self._lk = dict(winSize=(o.window, o.window), maxLevel=o.levels,
+                        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+
+    def update(self, image: NDArray) -> tuple[IntArray, FloatArray]:
+        """Track into the next image; returns the live track ids ``(n,)`` and pixels ``(n, 2)``.
+
+        Raises:
+            ValueError: an image of the wrong size or layout (the message names the frame).
+        """
+        where = f"frame {self._frame}"
+        gray = _gray(image, self._shape, where)
+        if self._shape is None:
+            self._shape = gray.shape
+        if self._previous is not None and len(self._uv):
+            self._follow(gray)
+        if len(self._uv) < self.options.min_tracks:
+            self._detect(gray)
+        self._previous = gray
+        self._frame += 1
+        order = np.argsort(self._ids)
+        return self._ids[order].copy(), self._uv[order].astype(float)
+
+    def _follow(self, gray: NDArray[np.uint8]) -> None:
+        o = self.options
+        prev = self._uv.reshape(-1, 1, 2)
+        fwd, st1, _ = cv2.calcOpticalFlowPyrLK(self._previous, gray, prev, None, **self._lk)
+        back, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self._previous, fwd, None, **self._lk)
+        fwd, back = fwd.reshape(-1, 2), back.reshape(-1, 2)
+        round_trip = np.linalg.norm(back - self._uv, axis=1)
+        h, w = gray.shape
+        inside = ((fwd[:, 0] >= o.border) & (fwd[:, 0] <= w - 1 - o.border)
+                  & (fwd[:, 1] >= o.border) & (fwd[:, 1] <= h - 1 - o.border))
+        keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (round_trip < o.fb_threshold) & inside
+        self._uv, self._ids = fwd[keep].astype(np.float32), self._ids[keep]
+
+    def _detect(self, gray: NDArray[np.uint8]) -> None:
+        o = self.options
+        mask = np.full(gray.shape, 255, dtype=np.uint8)
+        for u, v in self._uv:
+            cv2.circle(mask, (int(round(u)), int(round(v))), int(o.min_distance), 0, -1)
+        wanted = o.max_tracks - len(self._uv)
+        if wanted <= 0:
+            return
+        corners = cv2.goodFeaturesToTrack(gray, wanted, o.quality, o.min_distance, mask=mask,
+                                          blockSize=7)
+        if corners is None:
+            return
+        corners = corners.reshape(-1, 2)
+        if len(corners):
+            cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1),
+                             (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01))
+        ids = np.arange(self._next_id, self._next_id + len(corners), dtype=np.int64)
+        self._next_id += len(corners)
+        self._uv = np.concatenate([self._uv, corners.astype(np.float32)])
+        self._ids = np.concatenate([self._ids, ids])
+
+
+def track_images(images: Iterable[NDArray], size: tuple[int, int] | None = None,
+                 options: TrackerOptions | None = None) -> Tracks:
+    """Track a camera's images (in frame order) into the sequence format's :class:`Tracks`."""
+    tracker = KLTTracker(size, options)
+    frames, ids, uvs = [], [], []
+    for f, image in enumerate(images):
+        track_ids, uv = tracker.update(image)
+        frames.append(np.full(len(track_ids), f, dtype=np.int64))
+        ids.append(track_ids)
+        uvs.append(uv)
+    if not frames:
+        return Tracks(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)))
+    return Tracks(np.concatenate(frames), np.concatenate(ids), np.concatenate(uvs))
