@@ -30,6 +30,7 @@ _EXAMPLES = {
     "bench solver": "example:\n  apcc-graph bench solver --trials 20",
     "bench accuracy": "example:\n  apcc-graph bench accuracy --trials 1000",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
+    "track": "example:\n  apcc-graph track my_recording --force",
     "bench smoother": "example:\n  apcc-graph bench smoother\n  apcc-graph bench smoother "
     "--frames 120 --long-frames 450 --memory-frames 1200 --no-batch",
 }
@@ -100,6 +101,13 @@ def _segment_toml(segment: object) -> str:
 
 
 # ------------------------------------------------------------------------------------ simulate
+def _run_track(args: argparse.Namespace) -> str:
+    from apcc_graph.frontend.tracking import track_sequence
+
+    written = track_sequence(args.sequence, force=args.force, progress=True)
+    return "wrote " + ", ".join(str(p) for p in written)
+
+
 def _run_simulate(args: argparse.Namespace) -> str:
     from apcc_graph.io import save_sequence
     from apcc_graph.robot import load_robot
@@ -399,6 +407,17 @@ def build_parser() -> argparse.ArgumentParser:
                       help="round pixels to this many decimals (default: full precision)")
     simp.add_argument("--force", action="store_true", help="write into a non-empty --out")
     simp.set_defaults(run=_run_simulate)
+
+    trk = sub.add_parser(
+        "track", help="turn a sequence folder's images into tracks (OpenCV KLT)",
+        description="Detect Shi-Tomasi corners in images/cam_<i>/<frame:06d>.png and follow "
+        "them with pyramidal Lucas-Kanade (forward-backward checked); write tracks/cam_<i>.csv.",
+        epilog=_EXAMPLES["track"], formatter_class=fmt,
+    )
+    trk.add_argument("sequence", help="sequence folder with images/")
+    trk.add_argument("--force", action="store_true",
+                     help="replace tracks files that already hold observations")
+    trk.set_defaults(run=_run_track)
 
     est = sub.add_parser(
         "estimate", help="estimate every frame's segment angles of a sequence folder",

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
 
 from apcc_graph.frontend.tracking import KLTTracker, TrackerOptions, track_images
+
+ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 
 
 def texture(seed: int = 0, size: tuple[int, int] = (480, 640)) -> np.ndarray:
@@ -103,3 +107,71 @@ def test_bad_images_are_refused_with_the_frame_named() -> None:
         TrackerOptions(min_tracks=0)
     with pytest.raises(ValueError, match="odd"):
         TrackerOptions(window=20)
+
+
+# ------------------------------------------------------------------ a sequence folder of images
+@pytest.fixture()
+def image_folder(tmp_path):
+    """A 6-frame sequence folder whose camera 1 images pan across a texture (no tracks yet)."""
+    from apcc_graph.io import save_sequence
+    from apcc_graph.robot import load_robot
+    from apcc_graph.sequence import Sequence
+
+    robot = load_robot(ROBOT)
+    source = tmp_path / "source"
+    source.mkdir()
+    base = texture(6, (480, 700))
+    files = {}
+    for f in range(6):
+        path = source / f"{f:06d}.png"
+        cv2.imwrite(str(path), np.ascontiguousarray(base[:, 4 * f:4 * f + 640]))
+        files[f] = path
+    seq = Sequence(robot, np.arange(6) / 30.0, images={0: files})
+    folder = tmp_path / "seq"
+    save_sequence(seq, folder)
+    return folder
+
+
+def test_track_sequence_writes_tracks_that_load_back(image_folder) -> None:
+    from apcc_graph.frontend.tracking import track_sequence
+    from apcc_graph.io import load_sequence
+
+    written = track_sequence(image_folder)
+    assert written == [image_folder / "tracks" / "cam_1.csv"]
+    seq = load_sequence(image_folder)
+    corr = seq.correspondences(0, 0, 5)
+    assert len(corr) > 150
+    # The images pan by 4 px per frame: u decreases by 20 px over 5 frames, v stays.
+    shift = np.median(corr.uv_b - corr.uv_a, axis=0)
+    assert abs(shift[0] + 20.0) < 0.1 and abs(shift[1]) < 0.1
+    # Tracks are there now: a second run refuses unless forced.
+    with pytest.raises(ValueError, match="cam_1.csv: already holds .* use --force"):
+        track_sequence(image_folder)
+    assert track_sequence(image_folder, force=True) == written
+
+
+def test_track_sequence_names_the_bad_image_and_writes_nothing(image_folder) -> None:
+    from apcc_graph.frontend.tracking import track_sequence
+
+    bad = image_folder / "images" / "cam_1" / "000003.png"
+    bad.write_bytes(b"not a png")
+    with pytest.raises(ValueError, match="000003.png: not a readable image"):
+        track_sequence(image_folder)
+    cv2.imwrite(str(bad), np.zeros((240, 320), np.uint8))
+    with pytest.raises(ValueError, match="000003.png: frame 3: image is 320x240 pixels"):
+        track_sequence(image_folder)
+    bad.unlink()
+    with pytest.raises(ValueError, match="000003.png: missing"):
+        track_sequence(image_folder)
+    tracks = image_folder / "tracks" / "cam_1.csv"
+    assert not tracks.exists() or tracks.read_text().count("\n") == 1  # header only, as saved
+
+
+def test_track_command(image_folder, capsys) -> None:
+    from apcc_graph.cli import main
+
+    assert main(["track", str(image_folder)]) == 0
+    assert "cam_1.csv" in capsys.readouterr().out
+    assert main(["track", str(image_folder)]) == 1
+    assert "use --force" in capsys.readouterr().err
+    assert main(["track", str(image_folder), "--force"]) == 0

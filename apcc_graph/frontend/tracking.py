@@ -19,11 +19,14 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from tqdm import tqdm
 
+from apcc_graph.atomic_write import atomic_write_text
 from apcc_graph.sequence import Tracks
 
 FloatArray = NDArray[np.float64]
@@ -174,3 +177,70 @@ def track_images(images: Iterable[NDArray], size: tuple[int, int] | None = None,
     if not frames:
         return Tracks(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)))
     return Tracks(np.concatenate(frames), np.concatenate(ids), np.concatenate(uvs))
+
+
+def track_sequence(folder: str | Path, force: bool = False,
+                   options: TrackerOptions | None = None, progress: bool = False) -> list[Path]:
+    """Track the images of a sequence folder and write ``tracks/cam_<i>.csv``.
+
+    Every camera with an ``images/cam_<i>/`` folder must have one image per frame. Tracks are
+    written atomically, and only after every camera was tracked, so a failure leaves the folder
+    as it was.
+
+    Args:
+        folder: the sequence folder (``robot.toml``, ``frames.csv``, ``images/``).
+        force: replace tracks files that already hold observations.
+        options: tracker parameters.
+        progress: show a progress bar.
+
+    Returns:
+        The tracks files written.
+
+    Raises:
+        ValueError: no images, an image missing or unreadable, of the wrong size for its camera,
+            or existing tracks without ``force``; the message names the file.
+    """
+    from apcc_graph.io import load_sequence, tracks_csv
+
+    folder = Path(folder)
+    sequence = load_sequence(folder)
+    if not sequence.images:
+        raise ValueError(f"{folder / 'images'}: no images to track (expected "
+                         "images/cam_<i>/<frame:06d>.png)")
+    targets = {cam: folder / "tracks" / f"cam_{cam + 1}.csv" for cam in sequence.images}
+    if not force:
+        for cam, target in targets.items():
+            if cam in sequence.tracks and len(sequence.tracks[cam]):
+                raise ValueError(f"{target}: already holds {len(sequence.tracks[cam])} "
+                                 "observations; use --force to replace them")
+    texts = {}
+    total = sum(sequence.n_frames for _ in sequence.images)
+    with tqdm(total=total, desc="track", unit="image", disable=not progress) as bar:
+        for cam, files in sequence.images.items():
+            camera = sequence.robot.cameras[cam]
+            assert camera is not None
+            tracker = KLTTracker((camera.width, camera.height), options)
+            frames, ids, uvs = [], [], []
+            for f in range(sequence.n_frames):
+                path = files.get(f, folder / "images" / f"cam_{cam + 1}" / f"{f:06d}.png")
+                if f not in files or not path.is_file():
+                    raise ValueError(f"{path}: missing; camera {cam + 1} needs one image per "
+                                     f"frame (0..{sequence.n_frames - 1})")
+                image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+                if image is None:
+                    raise ValueError(f"{path}: not a readable image")
+                try:
+                    track_ids, uv = tracker.update(image)
+                except ValueError as error:
+                    raise ValueError(f"{path}: {error}") from None
+                frames.append(np.full(len(track_ids), f, dtype=np.int64))
+                ids.append(track_ids)
+                uvs.append(uv)
+                bar.update()
+            texts[cam] = tracks_csv(Tracks(np.concatenate(frames), np.concatenate(ids),
+                                           np.concatenate(uvs)))
+    written = []
+    for cam, text in texts.items():
+        atomic_write_text(targets[cam], text)
+        written.append(targets[cam])
+    return written
