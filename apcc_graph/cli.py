@@ -30,6 +30,7 @@ _EXAMPLES = {
     "bench solver": "example:\n  apcc-graph bench solver --trials 20",
     "bench accuracy": "example:\n  apcc-graph bench accuracy --trials 1000",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
+    "bench tracking": "example:\n  apcc-graph bench tracking --frames 200",
     "track": "example:\n  apcc-graph track my_recording --force",
     "bench smoother": "example:\n  apcc-graph bench smoother\n  apcc-graph bench smoother "
     "--frames 120 --long-frames 450 --memory-frames 1200 --no-batch",
@@ -300,6 +301,15 @@ def _run_bench_accuracy(args: argparse.Namespace) -> str:
     return "\n".join(lines)
 
 
+def _run_bench_tracking(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.tracking import format_tracking_benchmark, run_tracking_benchmark
+
+    if not (args.noise >= 0.0 and math.isfinite(args.noise)):
+        raise UserError(f"--noise {args.noise!r}: expected grey levels >= 0")
+    rows = run_tracking_benchmark(frames=args.frames, seed=args.seed, noise=args.noise)
+    return format_tracking_benchmark(rows, args.frames, args.noise)
+
+
 def _run_bench_smoother(args: argparse.Namespace) -> str:
     from apcc_graph.bench.smoother import format_smoother_benchmark, run_smoother_benchmark
 
@@ -544,6 +554,17 @@ def build_parser() -> argparse.ArgumentParser:
     smb.add_argument("--seed", type=int, default=1)
     smb.add_argument("--no-batch", action="store_true", help="leave the batch out (slow)")
     smb.set_defaults(run=_run_bench_smoother)
+
+    trb = bench_sub.add_parser(
+        "tracking", help="KLT tracking vs ORB matching: images per second and pixel error",
+        description="Track a seeded textured image sequence whose frame-to-frame homographies "
+        "are known, with the KLT tracker and with ORB + brute-force matching, and score both.",
+        epilog=_EXAMPLES["bench tracking"], formatter_class=fmt,
+    )
+    trb.add_argument("--frames", type=_at_least(3), default=200)
+    trb.add_argument("--noise", type=float, default=2.0, help="sensor noise, grey levels")
+    trb.add_argument("--seed", type=int, default=0)
+    trb.set_defaults(run=_run_bench_tracking)
     return parser
 
 

@@ -60,3 +60,19 @@ def test_bench_smoother_small_run(capsys) -> None:
                      r"ratio 1\.\d{3}", text)
     assert text.count("segment ") >= 3 and "self-calibration" in text
     assert re.search(r"segment 1: k 0\.\d{4} \(true 0\.2500\)", text)
+
+
+def test_bench_tracking_small_run(capsys) -> None:
+    assert main(["bench", "tracking", "--frames", "12", "--seed", "2"]) == 0
+    text = capsys.readouterr().out
+    rows = {ln.split("  ")[1].strip(): ln.split()[-5:] for ln in text.splitlines()
+            if ln.startswith("  KLT") or ln.startswith("  ORB")}
+    klt, orb = rows["KLT (ours)"], rows["ORB + BFMatcher (cross-check)"]
+    # The homographies are known exactly: KLT's correspondences follow them to a tenth of a
+    # pixel (measured 0.025 median); ORB's keypoints are coarser (measured 0.8).
+    images_per_s, pairs, median, p95 = (float(v) for v in klt[:4])
+    assert median < 0.1 and p95 < 0.5
+    assert float(orb[2]) > median
+    assert pairs > 100 and images_per_s > 0
+    assert "x the images per second" in text
+    assert main(["bench", "tracking", "--noise", "-1"]) == 1
