@@ -59,7 +59,7 @@ _NO_MOTION = 1e-12
 """Below this Sampson denominator (unit bearings; it scales with the camera's translation in
 metres) a correspondence is treated as showing no motion: residual and Jacobian zero. At round-off
 baselines the ratio would otherwise be 0/0 noise with Jacobians near 1e16."""
-_SLOPE_OUTLIER = 100.0
+SLOPE_OUTLIER = 100.0
 """A correspondence whose Sampson slope exceeds this multiple of the pair's median is ill-posed
 (near the epipole the Sampson error's denominator vanishes)."""
 _K_MARGIN = 1e-3
@@ -338,7 +338,7 @@ def epipolar_residual(
 
 
 # --------------------------------------------------------------------------------- factors
-def _clamped_segments(segments: Sequence[Segment], values: gtsam.Values,
+def calibrated_segments(segments: Sequence[Segment], values: gtsam.Values,
                       keys: Sequence[tuple[int, int]]) -> list[Segment]:
     """Segments with k and delta_max read from the calibration variables (clamped to range)."""
     out = []
@@ -442,7 +442,7 @@ class EpipolarFrameFactor:
             slope = np.abs(res.J_b[lo:hi, i])
             mid = (hi - lo) // 2
             median = float(np.partition(slope, mid)[mid])  # upper median; cheap
-            sane = slope < _SLOPE_OUTLIER * max(median, 1e-12)
+            sane = slope < SLOPE_OUTLIER * max(median, 1e-12)
             keep = (np.abs(res.r[lo:hi]) < self.gate) & sane
             if keep.sum() >= self.min_rows:
                 mask[lo:hi] = keep
@@ -479,7 +479,7 @@ class EpipolarFrameFactor:
         th_b = [values_of[k] for k in self.keys_b]
         th_a = [[values_of[k] for k in ks] for ks in self.keys_a]
         segs = (self.segments if self.cal_keys is None
-                else _clamped_segments(self.segments, values, self.cal_keys))
+                else calibrated_segments(self.segments, values, self.cal_keys))
         first = self.mask is None
         res = epipolar_frame_residual(th_b, th_a, segs, self.tip_T_cam, self.base_b,
                                       self.bases_a, self.f_a, self.f_b,

@@ -8,23 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
+from apcc_graph.bench.tracking import texture
 from apcc_graph.frontend.tracking import KLTTracker, TrackerOptions, track_images
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
-
-
-def texture(seed: int = 0, size: tuple[int, int] = (480, 640)) -> np.ndarray:
-    """Smoothed random texture with corners at several scales (8-bit grey)."""
-    rng = np.random.default_rng(seed)
-    out = np.zeros(size, dtype=np.float64)
-    for scale in (4, 16, 64):
-        small = rng.random((size[0] // scale + 2, size[1] // scale + 2))
-        out += cv2.resize(small, (size[1] + 2 * scale, size[0] + 2 * scale),
-                          interpolation=cv2.INTER_CUBIC)[scale:scale + size[0],
-                                                         scale:scale + size[1]]
-    out = cv2.GaussianBlur(out, (0, 0), 1.0)
-    out = (out - out.min()) / (out.max() - out.min())
-    return (out * 255).astype(np.uint8)
 
 
 def warp(image: np.ndarray, H: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ class TrackingRow:
     within_1px: float  # fraction
 
 
-def texture(seed: int, shape: tuple[int, int]) -> np.ndarray:
+def texture(seed: int, shape: tuple[int, int] = (480, 640)) -> np.ndarray:
     """A seeded random texture with structure at 4, 16 and 64 pixels (8-bit grey)."""
     rng = np.random.default_rng(seed)
     out = np.zeros(shape)

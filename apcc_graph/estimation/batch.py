@@ -34,12 +34,10 @@ from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.geometry import SegmentTwoView, epipolar_errors
 from apcc_graph.sequence import Sequence
-from factors.epipolar import ROBUST_LOSSES, epipolar_frame_factor
+from factors.epipolar import ROBUST_LOSSES, SLOPE_OUTLIER, epipolar_frame_factor
 from factors.priors import angle_prior, joint_limit_factor, motion_prior
 
 DEFAULT_GAPS = (1, 2, 5, 10, 20)
-_SLOPE_OUTLIER = 100.0
-"""A correspondence whose Sampson slope exceeds this multiple of the median is ill-posed."""
 
 
 @dataclass(frozen=True)
@@ -183,7 +181,7 @@ def _gate(sequence: Sequence, initial: np.ndarray, cam: int, a: int, b: int,
     # Near the epipole the Sampson error's denominator vanishes and its slope explodes: such a
     # correspondence carries no parallax information, only ill-conditioning. Leave it out.
     slope = np.abs(de)
-    sane = slope < _SLOPE_OUTLIER * max(float(np.median(slope)), 1e-12)
+    sane = slope < SLOPE_OUTLIER * max(float(np.median(slope)), 1e-12)
     return (np.abs(e) < gate) & sane
 
 

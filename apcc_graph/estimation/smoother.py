@@ -67,7 +67,7 @@ from apcc_graph.kinematics import apcc_transform_scalar
 from apcc_graph.robot import Robot
 from apcc_graph.sequence import FrameObservations, Sequence
 from apcc_graph.solvers import one_point_ransac
-from factors.epipolar import EpipolarFrameFactor
+from factors.epipolar import EpipolarFrameFactor, calibrated_segments
 from factors.priors import angle_prior, joint_limit_factor, motion_prior
 
 FloatArray = NDArray[np.float64]
@@ -440,17 +440,9 @@ class FixedLagSmoother:
         """The segments with the current calibration."""
         if not self.calibrate or self._count == 0:
             return self.robot.segments
-        from apcc_graph.segment import Segment
-
-        est = self._smoother.calculateEstimate()
-        out = []
-        for i, seg in enumerate(self.robot.segments):
-            k_key, d_key = _calibration_keys(i)
-            k = min(max(float(est.atVector(k_key)[0]), 1e-3), 0.5 - 1e-3)
-            lim = 0.999 * seg.theta_max
-            d = min(max(float(est.atVector(d_key)[0]), -lim), lim)
-            out.append(Segment(seg.length, k, d, seg.theta_max))
-        return tuple(out)
+        keys = [_calibration_keys(i) for i in range(self.robot.n_segments)]
+        return tuple(calibrated_segments(self.robot.segments, self._smoother.calculateEstimate(),
+                                         keys))
 
     def _predict(self, f: int) -> FloatArray:
         """Constant angular velocity from the two previous frames' estimates."""
@@ -624,7 +616,7 @@ class FixedLagSmoother:
             symbol = gtsam.Symbol(key)
             seg = self.robot.segments[symbol.index()]
             return seg.k if chr(symbol.chr()) == "k" else seg.delta_max
-        return float(self._smoother.calculateEstimate().atVector(key)[0])
+        return float(self._smoother.calculateEstimateVector(key)[0])
 
     def _relocate(self, i: int, seg, camera, latest: tuple | None,  # noqa: ANN001
                   pose: FloatArray, thetas: FloatArray, status: NDArray[np.str_]) -> bool:
