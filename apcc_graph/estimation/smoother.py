@@ -165,6 +165,14 @@ class FixedLagSmoother:
             (first-estimate Jacobians, as in filter-based visual-inertial odometry): no Python
             runs inside gtsam. ``"relinearize"``: the Python factor itself, which iSAM2
             re-linearises when its variables move more than ``relinearize_threshold``.
+        iterations: first-estimate factors of a new frame are linearised at the prediction;
+            while the update then moves that frame's angles by more than
+            ``iterate_threshold``, they are re-gated and re-linearised at the new estimate and
+            swapped in, up to ``iterations`` linearisations in all (an iterated update, as in
+            the iterated EKF; iSAM2 backend). 1 disables it. Prediction errors of a few tenths
+            of a degree are enough to bias a one-shot linearisation where the absolute angles
+            are weakly observed, and on accurate (image) tracks the bias can run away.
+        iterate_threshold: see ``iterations`` (radians).
         rebuild_threshold: first-estimate factors whose variables have since moved more than
             this (radians) are rebuilt at the current estimate (re-gated and re-linearised) and
             swapped in, at most ``rebuilds_per_frame`` per update, largest move first (iSAM2
@@ -212,6 +220,8 @@ class FixedLagSmoother:
         linearization: str = "first-estimate",
         rebuild_threshold: float = math.radians(0.1),
         rebuilds_per_frame: int = 0,
+        iterations: int = 3,
+        iterate_threshold: float = math.radians(0.01),
         keyframe_every: int = 10,
         keyframes: int = 0,
         agreement: float = 0.5,
@@ -249,6 +259,13 @@ class FixedLagSmoother:
         self.linearization = linearization
         self.rebuild_threshold = rebuild_threshold
         self.rebuilds_per_frame = int(rebuilds_per_frame)
+        if int(iterations) < 1 or not iterate_threshold >= 0.0:
+            raise ValueError(f"FixedLagSmoother: iterations = {iterations!r} and "
+                             f"iterate_threshold = {iterate_threshold!r}: expected >= 1 and "
+                             ">= 0")
+        self.iterations = int(iterations)
+        self.iterate_threshold = float(iterate_threshold)
+        self._fresh: list[tuple[int, int, list]] = []  # the new frame's (position, camera, pairs)
         if int(keyframe_every) < 1 or int(keyframes) < 0:
             raise ValueError(f"FixedLagSmoother: keyframe_every = {keyframe_every!r} and "
                              f"keyframes = {keyframes!r}: expected >= 1 and >= 0")
@@ -368,7 +385,10 @@ class FixedLagSmoother:
             for i, key in enumerate(keys):
                 graph.add(angle_prior(key, thetas[i], self.loose_sigma))
         remove = self._rebuild_moved(graph, stamp)
+        fresh, self._fresh = self._fresh, []
         self._solve(graph, values, stamps, f, thetas, status, remove)
+        if fresh and self.iterations > 1 and "recovered" not in status:
+            self._iterate(frame, fresh, thetas, status)
         self._window[f] = stamp
         self._times[f] = t
         self._status[f] = status
@@ -520,12 +540,14 @@ class FixedLagSmoother:
                     status[i] = "no-consensus"
                 continue
             if self.linearization == "first-estimate" and self.rebuilds_per_frame > 0:
+                self._fresh.append((graph.size(), i, pairs))
                 self._pending.append((graph.size(), _Active(
                     f, i, frame, pairs, np.array([p[0].index for p in pairs] + [f]),
                     np.array([self._thetas[p[0].index][: i + 1] for p in pairs]
                              + [thetas[: i + 1]]))))
                 graph.add(factor.linear_factor(self._linearization_point(factor, f, thetas)))
             elif self.linearization == "first-estimate":
+                self._fresh.append((graph.size(), i, pairs))
                 graph.add(factor.linear_factor(self._linearization_point(factor, f, thetas)))
             else:
                 graph.add(factor.factor)
@@ -668,6 +690,43 @@ class FixedLagSmoother:
             except (RuntimeError, IndexError):
                 self._restart(f, thetas)
         self._read_window()
+
+    def _iterate(self, frame: _Frame, fresh: list[tuple[int, int, list]], point: FloatArray,
+                 status: NDArray[np.str_]) -> None:
+        """Re-linearise the new frame's factors at its updated estimate while it moves (see
+        ``iterations``); ``fresh`` holds each factor's position in the last update's graph."""
+        if self.backend != "incremental":
+            return
+        f = frame.index
+        for _ in range(self.iterations - 1):
+            self._read_window(everything=True)
+            now = self._thetas[f].copy()
+            if float(np.max(np.abs(now - point))) <= self.iterate_threshold:
+                return
+            indices = self._smoother.getISAM2Result().getNewFactorsIndices()
+            graph = gtsam.NonlinearFactorGraph()
+            remove, positions = [], []
+            for position, i, pairs in fresh:
+                factor = self._factor(i, frame, pairs, now)
+                if factor is None or not factor.mask.any():
+                    continue  # keep the factor linearised at the prediction
+                remove.append(int(indices[position]))
+                positions.append((graph.size(), i, pairs))
+                graph.add(factor.linear_factor(self._linearization_point(factor, f, now)))
+            if not positions:
+                return
+            self._solve(graph, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap(), f, now,
+                        status, remove)
+            if "recovered" in status:
+                return
+            new_indices = self._smoother.getISAM2Result().getNewFactorsIndices()
+            for position, i, _ in positions:
+                entry = self._active.get((f, i))
+                if entry is not None:  # the rebuild bookkeeping follows the swap
+                    entry.index = int(new_indices[position])
+                    entry.point = np.array([self._thetas[g][: i + 1] for g in entry.frames[:-1]]
+                                           + [now[: i + 1]])
+            fresh, point = positions, now
 
     def _register(self, pending: list[tuple[int, _Active]]) -> None:
         """Remember where gtsam put the new first-estimate factors (iSAM2 backend only)."""
