@@ -282,7 +282,10 @@ def _solve_thetas(
         px, pz, angle = _model_tips(thetas, length, k, rate)
         return np.concatenate([(px - pos[:, 0]) / sp, (pz - pos[:, 1]) / sp, (angle - ang) / sa])
 
-    sparsity = scipy.sparse.vstack([scipy.sparse.identity(n)] * 3)
+    # Several poses: a sparse Jacobian (its trust-region solver is lsmr, which steps in a 2-D
+    # subspace). One pose: a dense one (tr_solver "exact"); with a single unknown that subspace
+    # is 1-D and scipy's solve_trust_region_2d fails with IndexError (seen with scipy 1.17).
+    sparsity = scipy.sparse.vstack([scipy.sparse.identity(n)] * 3) if n > 1 else None
     res = scipy.optimize.least_squares(
         residuals,
         _initial_thetas(pos),

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -156,6 +157,64 @@ def test_fit_thetas_for_pcc_and_for_a_calibrated_segment() -> None:
     np.testing.assert_allclose(fit.thetas, thetas, atol=1e-9)
     with pytest.raises(ValueError, match="length"):
         fit_thetas(None, pos, ang)
+
+
+SINGLE_POSE_TRUTH = Segment(0.4, k=0.21, delta_max=math.radians(7.0), theta_max=math.radians(80.0))
+
+
+@pytest.mark.parametrize("perturbed", [False, True], ids=["exact", "perturbed"])
+@pytest.mark.parametrize("model", ["apcc", "pcc"])
+@pytest.mark.parametrize("bend_deg", [-80.0, -40.0, -10.0, 10.0, 40.0, 80.0])
+def test_fit_thetas_of_a_single_pose(bend_deg: float, model: str, perturbed: bool) -> None:
+    """One pose (one unknown) is fitted like any pose of a sweep.
+
+    Regression: scipy's ``trf`` with a sparse Jacobian (``lsmr``) raised IndexError in
+    ``solve_trust_region_2d`` for one unknown, e.g. the PCC fit of one APCC pose bent 40 deg.
+    """
+    seg = SINGLE_POSE_TRUTH
+    sigma_p, sigma_a = 0.002 * seg.length, math.radians(0.5)  # fit_thetas' defaults
+    pos, ang = sweep(seg, np.array([math.radians(bend_deg)]))
+    if perturbed:  # a measured tip that no theta explains exactly
+        pos, ang = pos + [[5e-4, -3e-4]], ang + math.radians(0.2)
+    fitted = None if model == "pcc" else seg
+
+    def tip(theta: float) -> tuple[float, float, float]:
+        if fitted is None:
+            px, pz = pcc_in_plane(np.array([theta]), seg.length)
+            return float(px[0]), float(pz[0]), theta
+        planar = apcc_in_plane(np.array([theta]), seg)
+        return float(planar.px[0]), float(planar.pz[0]), float(seg.tip_angle(theta))
+
+    def cost(theta: float) -> float:
+        x, z, a = tip(theta)
+        return (((x - pos[0, 0]) ** 2 + (z - pos[0, 1]) ** 2) / sigma_p**2
+                + ((a - ang[0]) / sigma_a) ** 2)
+
+    fit = fit_thetas(fitted, pos, ang, length=seg.length)
+    assert fit.thetas.shape == fit.position_residuals.shape == fit.angle_residuals.shape == (1,)
+    theta = float(fit.thetas[0])
+    # The reported residuals are those of the model tip at the fitted theta.
+    x, z, a = tip(theta)
+    assert fit.position_residuals[0] == pytest.approx(
+        math.hypot(x - pos[0, 0], z - pos[0, 1]), abs=1e-12)
+    assert fit.angle_residuals[0] == pytest.approx(a - ang[0], abs=1e-12)
+    # The fitted theta is the optimum: an independent 1-D minimisation of the same cost ...
+    best = scipy.optimize.minimize_scalar(cost, bounds=(theta - 0.3, theta + 0.3),
+                                          method="bounded", options={"xatol": 1e-12})
+    assert theta == pytest.approx(best.x, abs=1e-8)
+    assert cost(theta) <= cost(best.x) + 1e-9
+    # ... and the same pose fitted within a sweep (the per-pose fits are independent; they agree
+    # to the solver's tolerance, ~1e-9 rad).
+    others, others_ang = sweep(seg, np.radians([-60.0, 25.0]))
+    within = fit_thetas(fitted, np.vstack([pos, others]), np.concatenate([ang, others_ang]),
+                        length=seg.length)
+    assert theta == pytest.approx(float(within.thetas[0]), abs=1e-8)
+    assert fit.position_residuals[0] == pytest.approx(within.position_residuals[0], abs=1e-9)
+    if model == "apcc" and not perturbed:  # the calibrated model reproduces its own tip
+        assert theta == pytest.approx(math.radians(bend_deg), abs=1e-12)
+        assert fit.position_residuals[0] < 1e-12 and abs(fit.angle_residuals[0]) < 1e-12
+    if model == "pcc":  # PCC cannot explain the APCC tip: a real, millimetre-size residual
+        assert fit.position_residuals[0] > 1e-4
 
 
 @pytest.mark.parametrize(
