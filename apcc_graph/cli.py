@@ -22,15 +22,21 @@ _EXAMPLES = {
     "estimate": "example:\n  apcc-graph estimate data/sequences/planar_three --method batch "
     "--out /tmp/est --theta0-deg 20.5,-15.2,21.3",
     "evaluate": "example:\n  apcc-graph evaluate /tmp/est --truth data/sequences/planar_three",
-    "simulate": "example:\n  apcc-graph simulate --robot data/robots/planar_three.toml "
-    "--frames 300 --out /tmp/seq --noise-px 1 --outliers 0.1 --seed 1",
-    "calibrate": "example:\n  apcc-graph calibrate data/calibration/paper_example.toml",
+    "simulate": "examples:\n  apcc-graph simulate --robot data/robots/planar_three.toml "
+    "--frames 300 --out /tmp/seq --noise-px 1 --outliers 0.1 --seed 1\n"
+    "  apcc-graph simulate --robot data/robots/planar_three.toml --frames 150 --out /tmp/img "
+    "--images --seed 1 && apcc-graph track /tmp/img",
+    "calibrate": "examples:\n  apcc-graph calibrate data/calibration/paper_example.toml\n"
+    "  apcc-graph calibrate data/calibration/images_sweep --output /tmp/robot.toml\n"
+    "  apcc-graph calibrate /tmp/sweep --render --length 0.4 --k 0.21 --delta-max-deg 7 "
+    "--theta-max-deg 80 --bends-deg=-80,-40,0,40,80 --seed 0",
     "bench kinematics": "example:\n  apcc-graph bench kinematics --frames 1000000",
     "bench sequences": "example:\n  apcc-graph bench sequences --frames 1000 --rows 1000000",
     "bench solver": "example:\n  apcc-graph bench solver --trials 20",
     "bench accuracy": "example:\n  apcc-graph bench accuracy --trials 1000",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
     "bench tracking": "example:\n  apcc-graph bench tracking --frames 200",
+    "bench images": "example:\n  apcc-graph bench images --frames 150 --seeds 1,2,3,4,5",
     "track": "example:\n  apcc-graph track my_recording --force",
     "bench smoother": "example:\n  apcc-graph bench smoother\n  apcc-graph bench smoother "
     "--frames 120 --long-frames 450 --memory-frames 1200 --no-batch",
@@ -46,15 +52,86 @@ def _deg(radians: float) -> str:
 
 
 # ----------------------------------------------------------------------------------- calibrate
+_RENDER_OPTIONS = ("length", "k", "delta_max_deg", "theta_max_deg", "bends_deg", "seed", "noise",
+                   "tilt_deg", "force")
+
+
 def _run_calibrate(args: argparse.Namespace) -> str:
     from apcc_graph.calibration_file import calibrate_measurements, load_tip_measurements
 
-    report = calibrate_measurements(load_tip_measurements(args.file))
+    path = Path(args.file)
+    lines = []
+    if args.render:
+        lines.append(_render_calibration_images(args, path))
+    elif given := [name for name in _RENDER_OPTIONS
+                   if getattr(args, name) is not None and getattr(args, name) is not False]:
+        option = "--" + given[0].replace("_", "-")
+        raise UserError(f"{option} applies to --render only")
+    if path.is_dir():
+        from apcc_graph.calibration_images import calibrate_images
+
+        result = calibrate_images(path)
+        report = result.report
+        lines.append(_format_image_measurements(result))
+    else:
+        report = calibrate_measurements(load_tip_measurements(path))
     if args.output is not None:
         from apcc_graph.robot import Robot, save_robot
 
         save_robot(Robot([report.segment]), args.output)
-    return _format_calibration(report, args.file, args.output)
+    lines.append(_format_calibration(report, args.file, args.output))
+    return "\n".join(lines)
+
+
+def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
+    """``calibrate --render``: write a seeded synthetic image folder to ``path``."""
+    from apcc_graph.render_calibration import write_calibration_images
+    from apcc_graph.segment import Segment
+
+    missing = [f"--{name.replace('_', '-')}" for name in ("length", "k", "bends_deg")
+               if getattr(args, name) is None]
+    if missing:
+        raise UserError(f"--render needs {', '.join(missing)}")
+    try:
+        bends = [math.radians(float(v)) for v in args.bends_deg.split(",")]
+    except ValueError:
+        raise UserError(f"--bends-deg {args.bends_deg!r}: expected comma-separated degrees "
+                        "(write --bends-deg=-80,-40,0 when the first is negative)") from None
+    theta_max = max(abs(b) for b in bends) if args.theta_max_deg is None else math.radians(
+        args.theta_max_deg)
+    segment = Segment(args.length, k=args.k, delta_max=math.radians(args.delta_max_deg or 0.0),
+                      theta_max=theta_max)
+    tilt = math.radians(args.tilt_deg or 0.0) / math.sqrt(2.0)
+    seed = 0 if args.seed is None else args.seed
+    noise = 1.0 if args.noise is None else args.noise
+    written = write_calibration_images(path, segment, bends, seed=seed, noise=noise,
+                                       tilt=(tilt, tilt), force=args.force)
+    return (f"wrote {path}: {len(written) - 1} synthetic image(s) and {written[-1].name} "
+            f"(seed {seed}, noise {noise:g} grey levels)")
+
+
+def _format_image_measurements(result: object) -> str:
+    """One line per image: chord angle, tip angle, |OP|, fitted theta and corner RMS."""
+    from apcc_graph.calibration import MIN_BEND
+    from apcc_graph.calibration_images import ImagesCalibration
+
+    assert isinstance(result, ImagesCalibration)
+    m = result.setup.markers
+    lines = [
+        f"images in {result.folder} ({m.dictionary}, base id {m.base_id}, tip id {m.tip_id}):",
+        f"  {'image':<20} {'chord angle':>12} {'tip angle':>12} {'|OP|':>10} "
+        f"{'fitted theta':>13} {'corner RMS':>11}",
+    ]
+    thetas = result.report.apcc.thetas
+    for measured, theta in zip(result.measurements, thetas, strict=True):
+        tip = measured.tip
+        op = tip.op_distance(result.setup.length)
+        op_text = "-" if abs(2.0 * tip.chord_angle) < MIN_BEND else f"{op:.4f} m"
+        lines.append(
+            f"  {Path(measured.name).name:<20} {_deg(tip.chord_angle):>12} {_deg(tip.angle):>12} "
+            f"{op_text:>10} {_deg(float(theta)):>13} {measured.rms_px:>8.3f} px"
+        )
+    return "\n".join(lines)
 
 
 def _format_calibration(report: object, path: str, output: str | None) -> str:
@@ -117,14 +194,24 @@ def _run_simulate(args: argparse.Namespace) -> str:
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
         raise UserError(f"{out}: exists and is not empty; choose another --out or add --force")
+    scene = args.scene or ("room" if args.images else "points")
+    if args.images and scene != "room":
+        raise UserError("--images renders the textured room: use --scene room (or leave "
+                        "--scene out)")
+    image_options = [name for name in ("texture", "image_noise", "blur", "exposure",
+                                       "supersample") if getattr(args, name) is not None]
+    if image_options and not args.images:
+        raise UserError(f"--{image_options[0].replace('_', '-')} applies to --images only")
     robot = load_robot(args.robot)
     sim = simulate(
         robot, args.frames, noise_px=args.noise_px, outlier_fraction=args.outliers,
         seed=args.seed, fps=args.fps, motion=args.motion, spatial=args.spatial,
-        moving_base=args.moving_base, scene=args.scene, n_points=args.points,
+        moving_base=args.moving_base, scene=scene, n_points=args.points,
         track_lifetime=args.lifetime, blackout_fraction=args.blackout, decimals=args.decimals,
         progress=True,
     )
+    if args.images:
+        return _simulate_images(args, sim, out)
     save_sequence(sim.sequence, out)
     seq = sim.sequence
     lines = [f"wrote {out}: {seq.n_frames} frames at {args.fps:g} fps, "
@@ -135,6 +222,38 @@ def _run_simulate(args: argparse.Namespace) -> str:
                      f"{per_frame.mean():.0f} tracks per frame (min {per_frame.min()}), "
                      f"{int(sim.outliers[cam].sum())} outliers")
     return "\n".join(lines)
+
+
+def _simulate_images(args: argparse.Namespace, sim: object, out: Path) -> str:
+    """``simulate --images``: the sequence without tracks, and rendered images of the room."""
+    from apcc_graph.io import save_sequence
+    from apcc_graph.render import SensorModel, textured_room, write_sequence_images
+    from apcc_graph.sequence import Sequence
+    from apcc_graph.simulate import Simulation
+
+    assert isinstance(sim, Simulation)
+    seq = sim.sequence
+    try:
+        room = textured_room(sim.scene_centre, sim.room_half_size, args.texture or "skimage",
+                             seed=args.seed)
+        noise = SensorModel.noise_grey if args.image_noise is None else args.image_noise
+        sensor = SensorModel(noise_grey=noise,
+                             blur_sigma=args.blur or 0.0, exposure_change=args.exposure or 0.0)
+    except ImportError as error:
+        raise UserError(str(error)) from None
+    cameras = {cam: seq.robot.cameras[cam] for cam in seq.robot.camera_segments}
+    # The images are the observations: tracks come from `apcc-graph track`.
+    bare = Sequence(seq.robot, seq.timestamps, {}, world_T_base=seq.world_T_base,
+                    thetas=seq.thetas, psis=seq.psis)
+    save_sequence(bare, out)
+    images = write_sequence_images(out, room, cameras, sim.world_T_cam, sensor, seed=args.seed,
+                                   supersample=args.supersample or 2, progress=True)
+    return "\n".join([
+        f"wrote {out}: {seq.n_frames} frames at {args.fps:g} fps, {len(cameras)} camera(s), "
+        f"seed {args.seed}, rendered images in {images} ({args.texture or 'skimage'} "
+        f"textures, noise {sensor.noise_grey:g} grey levels)",
+        f"next: apcc-graph track {out}",
+    ])
 
 
 # ------------------------------------------------------------------------- estimate / evaluate
@@ -310,6 +429,29 @@ def _run_bench_tracking(args: argparse.Namespace) -> str:
     return format_tracking_benchmark(rows, args.frames, args.noise)
 
 
+def _run_bench_images(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.images import format_images_benchmark, run_images_benchmark
+
+    seeds = _int_list(args.seeds, "--seeds")
+    try:
+        runs = run_images_benchmark(frames=args.frames, seeds=tuple(seeds),
+                                    noise_grey=args.noise, texture_source=args.texture,
+                                    progress=True)
+    except ImportError as error:
+        raise UserError(str(error)) from None
+    return format_images_benchmark(runs, args.frames, args.noise)
+
+
+def _int_list(text: str, option: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        values = []
+    if not values:
+        raise UserError(f"{option} {text!r}: expected comma-separated integers, e.g. 1,2,3")
+    return values
+
+
 def _run_bench_smoother(args: argparse.Namespace) -> str:
     from apcc_graph.bench.smoother import format_smoother_benchmark, run_smoother_benchmark
 
@@ -372,19 +514,43 @@ def build_parser() -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
     cal = sub.add_parser(
         "calibrate",
-        help="calibrate k and delta_max of a segment from measured tip poses",
+        help="calibrate k and delta_max of a segment from measured tip poses or marker images",
         description="Calibrate one segment from a TOML file of measured tip poses "
-        "(format apcc-graph/calibration@1): one pose by the paper's closed form, several by "
-        "least squares. Prints the model and the APCC-vs-PCC residuals.",
+        "(format apcc-graph/calibration@1) or from a folder of side-camera images with ArUco "
+        "markers on the base and the tip (calibration.toml, format "
+        "apcc-graph/calibration-images@1, and *.png): one pose by the paper's closed form, "
+        "several by least squares. Prints the tip measured in each image, the model and the "
+        "APCC-vs-PCC residuals.",
         epilog=_EXAMPLES["calibrate"],
         formatter_class=fmt,
     )
-    cal.add_argument("file", help="calibration TOML file")
+    cal.add_argument("file", metavar="PATH",
+                     help="calibration TOML file, or folder of calibration images")
     cal.add_argument(
         "--output",
         metavar="ROBOT.toml",
         help="also write a one-segment robot.toml with the calibrated segment",
     )
+    syn = cal.add_argument_group(
+        "synthetic images", "--render first writes a seeded synthetic image folder to PATH (the\n"
+        "segment below bent to each of --bends-deg, seen by a 640x480 side camera), then\n"
+        "calibrates it")
+    syn.add_argument("--render", action="store_true", help="render synthetic images into PATH")
+    syn.add_argument("--length", type=_positive, help="segment length, metres")
+    syn.add_argument("--k", type=float, help="true k, 0 < k < 0.5")
+    syn.add_argument("--delta-max-deg", type=float, help="true delta_max, degrees (default 0)")
+    syn.add_argument("--theta-max-deg", type=float,
+                     help="true theta_max, degrees (default: the largest |bend|)")
+    syn.add_argument("--bends-deg", help="comma-separated bends, degrees, one image each "
+                     "(write --bends-deg=-80,-40,0 when the first is negative)")
+    syn.add_argument("--seed", type=int, help="random seed (default 0)")
+    syn.add_argument("--noise", type=_non_negative,
+                     help="sensor noise, grey levels (default 1)")
+    syn.add_argument("--tilt-deg", type=float,
+                     help="camera tilt away from parallel, degrees, about the image diagonal "
+                     "(default 0)")
+    syn.add_argument("--force", action="store_true",
+                     help="render into a non-empty PATH (replaces its calibration.toml and *.png)")
     cal.set_defaults(run=_run_calibrate)
 
     simp = sub.add_parser(
@@ -407,7 +573,9 @@ def build_parser() -> argparse.ArgumentParser:
     simp.add_argument("--spatial", action="store_true", help="also vary the bending planes psi")
     simp.add_argument("--moving-base", action="store_true",
                       help="move the base (rotation up to 5 deg, translation up to 0.1 m)")
-    simp.add_argument("--scene", choices=("points", "room"), default="points")
+    simp.add_argument("--scene", choices=("points", "room"), default=None,
+                      help="random points around the robot, or points on the walls of a room "
+                      "(default: points; room with --images)")
     simp.add_argument("--points", type=_at_least(1), default=2700, help="scene points")
     simp.add_argument("--lifetime", type=_positive, default=None,
                       help="mean track length in frames (default: while in view)")
@@ -416,6 +584,22 @@ def build_parser() -> argparse.ArgumentParser:
     simp.add_argument("--decimals", type=int, default=None,
                       help="round pixels to this many decimals (default: full precision)")
     simp.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    img = simp.add_argument_group(
+        "images", "--images renders what each tip camera sees of a textured room into\n"
+        "images/cam_<i>/<frame:06d>.png instead of writing simulated tracks (run\n"
+        "`apcc-graph track` next)")
+    img.add_argument("--images", action="store_true", help="render images of the room")
+    img.add_argument("--texture", choices=("skimage", "procedural"), default=None,
+                     help="wall textures: scikit-image's bundled photos (pip install "
+                     "'apcc-graph[images]') or seeded noise (default: skimage)")
+    img.add_argument("--image-noise", type=_non_negative, default=None,
+                     help="sensor noise, grey levels (default 2)")
+    img.add_argument("--blur", type=_non_negative, default=None,
+                     help="Gaussian blur, pixels (default 0)")
+    img.add_argument("--exposure", type=_fraction, default=None,
+                     help="largest relative exposure change over the sequence (default 0)")
+    img.add_argument("--supersample", type=int, choices=(1, 2, 3, 4), default=None,
+                     help="rays per pixel side (default 2)")
     simp.set_defaults(run=_run_simulate)
 
     trk = sub.add_parser(
@@ -565,6 +749,21 @@ def build_parser() -> argparse.ArgumentParser:
     trb.add_argument("--noise", type=float, default=2.0, help="sensor noise, grey levels")
     trb.add_argument("--seed", type=int, default=0)
     trb.set_defaults(run=_run_bench_tracking)
+
+    imb = bench_sub.add_parser(
+        "images", help="images -> tracks -> smoother vs the same motion as simulated tracks",
+        description="Render each tip camera's view of a textured room along a simulated "
+        "motion, track the images (KLT) and run the smoother; compare with the same motion "
+        "observed as simulated 1 px tracks (issue 6's end-to-end targets), and time the "
+        "tracker.",
+        epilog=_EXAMPLES["bench images"], formatter_class=fmt,
+    )
+    imb.add_argument("--frames", type=_at_least(10), default=150)
+    imb.add_argument("--seeds", default="1,2,3,4,5", help="comma-separated seeds")
+    imb.add_argument("--noise", type=_non_negative, default=2.0,
+                     help="sensor noise, grey levels (default 2)")
+    imb.add_argument("--texture", choices=("skimage", "procedural"), default="skimage")
+    imb.set_defaults(run=_run_bench_images)
     return parser
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence as SequenceOf
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -49,6 +49,9 @@ class Simulation:
         outliers: camera -> ``(N,)`` True where the row is a wrong association.
         world_T_cam: camera -> ``(F, 4, 4)`` true camera poses.
         world_T_tip: ``(F, S, 4, 4)`` true tip poses.
+        scene_centre: ``(3,)`` centre of the scene (the room box or the point shell), metres.
+        room_half_size: ``(3,)`` half extents of the room box (also set for the points scene,
+            where it is unused), metres.
     """
 
     sequence: Sequence
@@ -58,6 +61,8 @@ class Simulation:
     outliers: dict[int, NDArray[np.bool_]]
     world_T_cam: dict[int, FloatArray]
     world_T_tip: FloatArray
+    scene_centre: FloatArray = field(default_factory=lambda: np.zeros(3))
+    room_half_size: FloatArray = field(default_factory=lambda: np.ones(3))
 
 
 def _smooth_signal(rng: np.random.Generator, t: FloatArray, n: int,
@@ -288,7 +293,8 @@ def simulate(
     sequence = Sequence(robot, t, tracks, world_T_base=base, thetas=thetas, psis=psis)
     return Simulation(sequence=sequence, points_world=points, landmarks=landmarks,
                       clean_uv=clean, outliers=outliers, world_T_cam=cam_poses,
-                      world_T_tip=tips)
+                      world_T_tip=tips, scene_centre=centre,
+                      room_half_size=np.asarray(room_half_size, dtype=float))
 
 
 def simulate_sequence(robot: Robot, n_frames: int, noise_px: float = 0.5,

@@ -72,3 +72,68 @@ def test_bench_sequences_small_run(capsys) -> None:
     for label in ("simulate", "save_sequence", "load_sequence", "numpy.loadtxt", "csv module"):
         assert label in text
     assert "per million track rows" in text
+
+
+def test_simulate_images_then_track_then_estimate(tmp_path: Path, capsys) -> None:
+    """The pixel workflow of the README: simulate --images, track, estimate, evaluate."""
+    out = tmp_path / "seq"
+    code = main(["simulate", "--robot", ROBOT, "--frames", "8", "--out", str(out), "--images",
+                 "--texture", "procedural", "--seed", "2", "--supersample", "1"])
+    assert code == 0, capsys.readouterr().err
+    text = capsys.readouterr().out
+    assert "rendered images" in text and f"apcc-graph track {out}" in text
+    seq = load_sequence(out)
+    assert seq.n_frames == 8 and seq.has_truth
+    # The images are the observations: no simulated tracks, one image per frame and camera.
+    assert all(len(seq.tracks.get(c, ())) == 0 for c in (0, 1, 2))
+    assert {c: sorted(files) for c, files in seq.images.items()} == {
+        c: list(range(8)) for c in (0, 1, 2)}
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging left
+    assert main(["track", str(out)]) == 0
+    tracked = load_sequence(out)
+    assert all(len(tracked.tracks[c]) > 8 * 100 for c in (0, 1, 2))
+    est = tmp_path / "est"
+    theta0 = ",".join(f"{v:.6f}" for v in np.degrees(seq.thetas[0]))
+    assert main(["estimate", str(out), "--method", "smoother", "--out", str(est),
+                 f"--theta0-deg={theta0}"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(est), "--truth", str(out)]) == 0
+    assert "RMS" in capsys.readouterr().out
+
+
+def test_simulate_images_is_deterministic(tmp_path: Path) -> None:
+    args = ["simulate", "--robot", ROBOT, "--frames", "2", "--images", "--texture",
+            "procedural", "--seed", "4", "--image-noise", "3", "--blur", "0.5",
+            "--exposure", "0.1"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0
+    assert main(args + ["--out", str(tmp_path / "b")]) == 0
+    files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*.png"))
+    assert len(files) == 6
+    for name in files:
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+
+
+@pytest.mark.parametrize("bad, message", [
+    (["--images", "--scene", "points"], "--scene room"),
+    (["--texture", "procedural"], "--texture applies to --images only"),
+    (["--blur", "1"], "--blur applies to --images only"),
+])
+def test_simulate_images_rejects_bad_options(tmp_path: Path, bad: list[str], message: str,
+                                             capsys) -> None:
+    out = tmp_path / "s"
+    assert main(["simulate", "--robot", ROBOT, "--frames", "3", "--out", str(out)] + bad) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and "Traceback" not in err[0]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("bad", [["--exposure", "1.5"], ["--texture", "marble"],
+                                 ["--supersample", "9"], ["--image-noise", "-2"]])
+def test_simulate_images_rejects_bad_values(tmp_path: Path, bad: list[str], capsys) -> None:
+    out = tmp_path / "s"
+    with pytest.raises(SystemExit) as info:
+        main(["simulate", "--robot", ROBOT, "--frames", "3", "--out", str(out), "--images"]
+             + bad)
+    assert info.value.code == 2
+    assert bad[0] in capsys.readouterr().err
+    assert not out.exists()
