@@ -172,7 +172,11 @@ class FixedLagSmoother:
             the iterated EKF; iSAM2 backend). 1 disables it. Prediction errors of a few tenths
             of a degree are enough to bias a one-shot linearisation where the absolute angles
             are weakly observed, and on accurate (image) tracks the bias can run away.
-        iterate_threshold: see ``iterations`` (radians).
+        iterate_threshold: see ``iterations`` (radians). Measured on six 150-frame room
+            sequences (images and simulated 1 px tracks): 0.1 deg keeps the accuracy of 0.01 deg
+            (mean RMS 0.11 vs 0.10 deg on images, 1.34 vs 1.35 deg on 1 px tracks; one-shot:
+            3.84 and 2.20 deg) for 1.3-1.6x the update time of the one-shot update, against
+            1.7-2.2x at 0.01 deg.
         rebuild_threshold: first-estimate factors whose variables have since moved more than
             this (radians) are rebuilt at the current estimate (re-gated and re-linearised) and
             swapped in, at most ``rebuilds_per_frame`` per update, largest move first (iSAM2
@@ -221,7 +225,7 @@ class FixedLagSmoother:
         rebuild_threshold: float = math.radians(0.1),
         rebuilds_per_frame: int = 0,
         iterations: int = 3,
-        iterate_threshold: float = math.radians(0.01),
+        iterate_threshold: float = math.radians(0.1),
         keyframe_every: int = 10,
         keyframes: int = 0,
         agreement: float = 0.5,
