@@ -698,24 +698,30 @@ class FixedLagSmoother:
     def _iterate(self, frame: _Frame, fresh: list[tuple[int, int, list]], point: FloatArray,
                  status: NDArray[np.str_]) -> None:
         """Re-linearise the new frame's factors at its updated estimate while it moves (see
-        ``iterations``); ``fresh`` holds each factor's position in the last update's graph."""
+        ``iterations``); ``fresh`` holds each factor's position in the last update's graph.
+
+        Camera i's factor depends on the angles of segments 0..i, so it is rebuilt only when
+        those moved more than ``iterate_threshold`` since it was linearised."""
         if self.backend != "incremental":
             return
         f = frame.index
+        indices = self._smoother.getISAM2Result().getNewFactorsIndices()
+        # camera -> (gtsam index, pairs, angles of frame f it was linearised at)
+        live = {i: (int(indices[pos]), pairs, point.copy()) for pos, i, pairs in fresh}
         for _ in range(self.iterations - 1):
-            self._read_window(everything=True)
+            needed = {f} | {p[0].index for _, pairs, _ in live.values() for p in pairs}
+            self._read_window(frames=needed)
             now = self._thetas[f].copy()
-            if float(np.max(np.abs(now - point))) <= self.iterate_threshold:
-                return
-            indices = self._smoother.getISAM2Result().getNewFactorsIndices()
             graph = gtsam.NonlinearFactorGraph()
             remove, positions = [], []
-            for position, i, pairs in fresh:
+            for i, (index, pairs, at) in live.items():
+                if float(np.max(np.abs(now[: i + 1] - at[: i + 1]))) <= self.iterate_threshold:
+                    continue
                 factor = self._factor(i, frame, pairs, now)
                 if factor is None or not factor.mask.any():
-                    continue  # keep the factor linearised at the prediction
-                remove.append(int(indices[position]))
-                positions.append((graph.size(), i, pairs))
+                    continue  # keep the factor linearised where it was
+                remove.append(index)
+                positions.append((graph.size(), i))
                 graph.add(factor.linear_factor(self._linearization_point(factor, f, now)))
             if not positions:
                 return
@@ -724,13 +730,13 @@ class FixedLagSmoother:
             if "recovered" in status:
                 return
             new_indices = self._smoother.getISAM2Result().getNewFactorsIndices()
-            for position, i, _ in positions:
+            for position, i in positions:
+                live[i] = (int(new_indices[position]), live[i][1], now)
                 entry = self._active.get((f, i))
                 if entry is not None:  # the rebuild bookkeeping follows the swap
-                    entry.index = int(new_indices[position])
+                    entry.index = live[i][0]
                     entry.point = np.array([self._thetas[g][: i + 1] for g in entry.frames[:-1]]
                                            + [now[: i + 1]])
-            fresh, point = positions, now
 
     def _register(self, pending: list[tuple[int, _Active]]) -> None:
         """Remember where gtsam put the new first-estimate factors (iSAM2 backend only)."""
@@ -816,12 +822,14 @@ class FixedLagSmoother:
         for h in list(self._history)[:-1]:
             self._history.remove(h)
 
-    def _read_window(self, everything: bool = False) -> None:
+    def _read_window(self, everything: bool = False, frames: set[int] | None = None) -> None:
         """Refresh the estimates the next frame needs (the frames it will be paired with and
-        the two it is predicted from), or every frame in the window."""
+        the two it is predicted from), or every frame in the window, or ``frames``."""
         n_seg = self.robot.n_segments
         f = self._count
-        if everything:
+        if frames is not None:
+            wanted = set(frames)
+        elif everything:
             wanted = set(self._window) | {f}
         else:
             wanted = ({f, f - 1} | {f + 1 - gap for gap in self.options.gaps}
