@@ -13,6 +13,7 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -22,6 +23,8 @@ _EXAMPLES = {
     "estimate": "example:\n  apcc-graph estimate data/sequences/planar_three --method batch "
     "--out /tmp/est --theta0-deg 20.5,-15.2,21.3",
     "evaluate": "example:\n  apcc-graph evaluate /tmp/est --truth data/sequences/planar_three",
+    "plot": "example:\n  apcc-graph plot /tmp/est --truth data/sequences/planar_three "
+    "--output /tmp/angles.png",
     "simulate": "examples:\n  apcc-graph simulate --robot data/robots/planar_three.toml "
     "--frames 300 --out /tmp/seq --noise-px 1 --outliers 0.1 --seed 1\n"
     "  apcc-graph simulate --robot data/robots/planar_three.toml --frames 150 --out /tmp/img "
@@ -33,7 +36,7 @@ _EXAMPLES = {
     "bench kinematics": "example:\n  apcc-graph bench kinematics --frames 1000000",
     "bench sequences": "example:\n  apcc-graph bench sequences --frames 1000 --rows 1000000",
     "bench solver": "example:\n  apcc-graph bench solver --trials 20",
-    "bench accuracy": "example:\n  apcc-graph bench accuracy --trials 1000",
+    "bench accuracy": "example:\n  apcc-graph bench accuracy --trials 1000 --plot /tmp/fig10.png",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
     "bench tracking": "example:\n  apcc-graph bench tracking --frames 200",
     "bench images": "example:\n  apcc-graph bench images --frames 150 --seeds 1,2,3,4,5",
@@ -405,6 +408,10 @@ def _run_bench_solver(args: argparse.Namespace) -> str:
 def _run_bench_accuracy(args: argparse.Namespace) -> str:
     from apcc_graph.bench.accuracy import run_accuracy_benchmark
 
+    if args.plot is not None:
+        from apcc_graph.plots import check_figure_path
+
+        check_figure_path(args.plot)
     r = run_accuracy_benchmark(trials=args.trials, points=args.points, seed=args.seed,
                                progress=True)
     lines = [f"Fig. 10 protocol: {r.points} points, no outliers, {r.rows[0].trials} trials per "
@@ -417,7 +424,34 @@ def _run_bench_accuracy(args: argparse.Namespace) -> str:
             f"  {row.base:<7} {row.noise_px:>4.1f}px {math.degrees(row.mean_error):>8.4f} deg "
             f"{math.degrees(row.median_error):>9.4f} deg {math.degrees(row.median_bound):>8.4f}"
             f" deg {eff:>10} {row.failures:>5}")
+    if args.plot is not None:
+        from apcc_graph.plots import noise_figure, save_figure
+
+        lines.append(f"wrote {save_figure(noise_figure(r), args.plot)}")
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ plot
+def _run_plot(args: argparse.Namespace) -> str:
+    from apcc_graph.estimate_io import load_theta_csv
+    from apcc_graph.io import load_sequence
+    from apcc_graph.plots import angles_figure, check_figure_path, save_figure
+
+    check_figure_path(args.output)
+    timestamps, thetas, sigmas = load_theta_csv(Path(args.estimate) / "theta.csv")
+    truth = None
+    if args.truth is not None:
+        seq = load_sequence(args.truth)
+        if seq.thetas is None:
+            raise UserError(f"{args.truth}: frames.csv has no ground-truth theta columns")
+        if seq.thetas.shape != thetas.shape:
+            raise UserError(f"{args.estimate}: {thetas.shape[0]} frames x {thetas.shape[1]} "
+                            f"segments, but {args.truth} has {seq.thetas.shape[0]} x "
+                            f"{seq.thetas.shape[1]}")
+        truth = seq.thetas
+    fig = angles_figure(timestamps, thetas, sigmas, truth, n_sigma=args.sigmas,
+                        label=Path(args.estimate).name or "estimate")
+    return f"wrote {save_figure(fig, args.output)}"
 
 
 def _run_bench_tracking(args: argparse.Namespace) -> str:
@@ -501,9 +535,16 @@ def _run_bench_calibration(args: argparse.Namespace) -> str:
 
 
 # -------------------------------------------------------------------------------------- parser
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr and exit code 1."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(1, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``apcc-graph`` (subcommands and their options)."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="apcc-graph",
         description="Continuum-robot shape from tip cameras (APCC 2L-5R).",
     )
@@ -643,7 +684,29 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--window", type=_at_least(1), default=100, help="frames per window")
     ev.set_defaults(run=_run_evaluate)
 
-    bench = sub.add_parser("bench", help="benchmarks against named peers (figures, not tests)")
+    plt = sub.add_parser(
+        "plot", help="plot an estimate's angles against time (and the truth, with errors)",
+        description="Draw every segment's estimated angle over time with a band of --sigmas "
+        "marginal standard deviations, the ground truth and the error when --truth is given "
+        "(the paper's Fig. 11).",
+        epilog=_EXAMPLES["plot"], formatter_class=fmt,
+    )
+    plt.add_argument("estimate", help="folder with theta.csv (the --out of estimate)")
+    plt.add_argument("--truth", help="sequence folder with ground truth")
+    plt.add_argument("--output", required=True, metavar="FIG.png",
+                     help="figure file (png, pdf, svg, ...)")
+    plt.add_argument("--sigmas", type=_positive, default=2.0,
+                     help="half-width of the uncertainty band in sigmas (default 2)")
+    plt.set_defaults(run=_run_plot)
+
+    bench = sub.add_parser(
+        "bench", help="benchmarks against named peers (figures, not tests)",
+        description="Speed and accuracy figures of apcc_graph and of named peers measured in "
+        "the same run. Each benchmark has its own --help.",
+        epilog="examples:\n" + "\n".join(
+            line for key, text in _EXAMPLES.items() if key.startswith("bench ")
+            for line in text.splitlines()[1:]),
+        formatter_class=fmt)
     bench_sub = bench.add_subparsers(dest="bench", metavar="BENCHMARK", required=True)
     kin = bench_sub.add_parser(
         "kinematics",
@@ -697,6 +760,8 @@ def build_parser() -> argparse.ArgumentParser:
     accb.add_argument("--points", type=_at_least(1), default=100,
                       help="correspondences per trial")
     accb.add_argument("--seed", type=int, default=0)
+    accb.add_argument("--plot", metavar="FIG.png",
+                      help="also write the error-vs-noise figure (the paper's Fig. 10)")
     accb.set_defaults(run=_run_bench_accuracy)
 
     calb = bench_sub.add_parser(

@@ -142,23 +142,6 @@ class TexturedRoom:
         row += dtype(_PAD)
         return col, row
 
-    def texture_coordinates(self, points: FloatArray, wall: NDArray[np.int64]) -> FloatArray:
-        """``(N, 2)`` texel coordinates (column, row) of points on their walls, unwrapped."""
-        axis = wall // 2
-        other = np.array([[1, 2], [0, 2], [0, 1]])[axis]
-        rows = np.arange(len(points))
-        local = np.asarray(points) - (self.centre - self.half_size)
-        return np.column_stack([local[rows, other[:, 0]], local[rows, other[:, 1]]]) \
-            * self.texels_per_metre
-
-    def sample(self, points: FloatArray, wall: NDArray[np.int64]) -> FloatArray:
-        """Bilinear texture value at points on walls (for tests and checks, not for rendering)."""
-        points = np.asarray(points, dtype=float)
-        col, row = self._texels(np.zeros(3), points.T, np.ones(len(points)), wall)
-        out = cv2.remap(self._atlas, col[:, None].astype(np.float32),
-                        row[:, None].astype(np.float32), cv2.INTER_LINEAR)
-        return out.reshape(-1).astype(float)
-
     def render(self, camera: TipCamera, world_T_cam: FloatArray, supersample: int = 2,
                ) -> NDArray[np.float32]:
         """The irradiance image ``(height, width)`` in [0, 1] seen by ``camera`` at a pose.

@@ -189,18 +189,25 @@ def test_user_mistakes_give_one_error_line_and_exit_1(
         ["calibrate"],
         ["bench", "kinematics", "--frames", "many"],
         [],
+        ["estimate", "data/sequences/planar_three", "--method", "magic", "--out", "x"],
+        ["bench"],
+        ["plot", "x"],
     ],
-    ids=["unknown-subcommand", "unknown-option", "missing-argument", "bad-int", "no-command"],
+    ids=["unknown-subcommand", "unknown-option", "missing-argument", "bad-int", "no-command",
+         "unknown-method", "no-benchmark", "plot-without-output"],
 )
-def test_argparse_mistakes_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+def test_argparse_mistakes_exit_1_with_one_line(argv: list[str],
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Usage mistakes end like every other user mistake: one line on stderr, exit code 1."""
     with pytest.raises(SystemExit) as info:
         main(argv)
-    assert info.value.code == 2
+    assert info.value.code == 1
     out, err = capsys.readouterr()
     assert out == ""
     assert "Traceback" not in err
-    last = err.strip().splitlines()[-1]
-    assert re.match(r"apcc-graph( \w+)*: error: ", last), err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert re.match(r"apcc-graph( \w+)*: error: .+ \(see apcc-graph( \w+)* --help\)$", lines[0])
 
 
 @pytest.mark.parametrize(

@@ -9,7 +9,7 @@ position and angle. Each model is fitted to the noisy poses and its tip is compa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +41,12 @@ class CalibrationBenchmark:
     noise_position: float
     noise_angle: float
     rows: tuple[ModelError, ...]
+    thetas: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    """``(N,)`` true bends of the sweep (radians)."""
+    truth_tips: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    """``(N, 2)`` true tip positions ``(x, z)`` (metres)."""
+    model_tips: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    """model name -> ``(N, 2)`` its fitted tip positions (metres)."""
 
     def row(self, model: str) -> ModelError:
         """The row of a model by name."""
@@ -75,9 +81,12 @@ def run_calibration_benchmark(
     measured = truth + rng.normal(0.0, noise_position, truth.shape)
     measured_angle = angle + rng.normal(0.0, noise_angle, angle.shape)
 
+    model_tips = {}
+
     def score(
         name: str, tips: np.ndarray, angles: np.ndarray, k: float, delta_max: float
     ) -> ModelError:
+        model_tips[name] = tips
         return ModelError(
             model=name,
             rms_position=float(np.sqrt(np.mean(np.sum((tips - truth) ** 2, axis=1)))),
@@ -109,4 +118,7 @@ def run_calibration_benchmark(
         noise_position=noise_position,
         noise_angle=noise_angle,
         rows=tuple(rows),
+        thetas=thetas,
+        truth_tips=truth,
+        model_tips=model_tips,
     )
