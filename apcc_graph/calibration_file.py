@@ -39,17 +39,9 @@ class TipMeasurements:
     theta_max: float | None = None
 
 
-def load_tip_measurements(path: str | Path) -> TipMeasurements:
-    """Read a calibration file.
-
-    Raises:
-        ValueError: the message names the file and the key at fault.
-    """
-    top = TomlTable(path, "", read_toml(path))
-    top.check_keys(
-        ("format", "length", "theta_max_deg", "poses"), required=("format", "length", "poses")
-    )
-    top.check_format(CALIBRATION_FORMAT)
+def segment_fields(top: TomlTable) -> tuple[float, float | None]:
+    """``length`` (metres, > 0) and the optional ``theta_max_deg`` (as radians, or None) of a
+    calibration file's top table; errors name the file and the key."""
     length = top.number("length")
     if length <= 0.0:
         raise top.error("length", f"expected a segment length > 0 (metres), got {length!r}")
@@ -61,6 +53,21 @@ def load_tip_measurements(path: str | Path) -> TipMeasurements:
                 "theta_max_deg", f"expected 0 < theta_max_deg <= 180, got {theta_max_deg!r}"
             )
         theta_max = math.radians(theta_max_deg)
+    return length, theta_max
+
+
+def load_tip_measurements(path: str | Path) -> TipMeasurements:
+    """Read a calibration file.
+
+    Raises:
+        ValueError: the message names the file and the key at fault.
+    """
+    top = TomlTable(path, "", read_toml(path))
+    top.check_keys(
+        ("format", "length", "theta_max_deg", "poses"), required=("format", "length", "poses")
+    )
+    top.check_format(CALIBRATION_FORMAT)
+    length, theta_max = segment_fields(top)
     positions, angles = [], []
     for pose in top.tables("poses"):
         pose.check_keys(

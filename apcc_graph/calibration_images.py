@@ -119,6 +119,7 @@ from apcc_graph.calibration_file import (
     CalibrationReport,
     TipMeasurements,
     calibrate_measurements,
+    segment_fields,
 )
 from apcc_graph.camera import TipCamera
 from apcc_graph.toml_fields import TomlTable, read_toml
@@ -295,16 +296,7 @@ def load_setup(folder: str | Path) -> CalibrationImagesSetup:
     top.check_keys(("format", "length", "theta_max_deg", "markers", "camera"),
                    required=("format", "length", "markers", "camera"))
     top.check_format(CALIBRATION_IMAGES_FORMAT)
-    length = top.number("length")
-    if length <= 0.0:
-        raise top.error("length", f"expected a segment length > 0 (metres), got {length!r}")
-    theta_max = None
-    if top.has("theta_max_deg"):
-        theta_max_deg = top.number("theta_max_deg")
-        if not 0.0 < theta_max_deg <= 180.0:
-            raise top.error("theta_max_deg",
-                            f"expected 0 < theta_max_deg <= 180, got {theta_max_deg!r}")
-        theta_max = math.radians(theta_max_deg)
+    length, theta_max = segment_fields(top)
     return CalibrationImagesSetup(length=length, theta_max=theta_max,
                                   markers=_markers_from(top.table("markers")),
                                   camera=_camera_from(top.table("camera")))

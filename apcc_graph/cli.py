@@ -301,20 +301,25 @@ def _run_estimate(args: argparse.Namespace) -> str:
     return "\n".join(lines)
 
 
+def _truth_for(estimate: str, thetas: np.ndarray, truth: str) -> np.ndarray:
+    """The ground-truth angles of sequence folder ``truth``, checked against an estimate's."""
+    from apcc_graph.io import load_sequence
+
+    seq = load_sequence(truth)
+    if seq.thetas is None:
+        raise UserError(f"{truth}: frames.csv has no ground-truth theta columns")
+    if seq.thetas.shape != thetas.shape:
+        raise UserError(f"{estimate}: {thetas.shape[0]} frames x {thetas.shape[1]} segments, "
+                        f"but {truth} has {seq.thetas.shape[0]} x {seq.thetas.shape[1]}")
+    return seq.thetas
+
+
 def _run_evaluate(args: argparse.Namespace) -> str:
     from apcc_graph.estimate_io import load_theta_csv
     from apcc_graph.evaluation import compare
-    from apcc_graph.io import load_sequence
 
     _, thetas, _ = load_theta_csv(Path(args.estimate) / "theta.csv")
-    truth_seq = load_sequence(args.truth)
-    if truth_seq.thetas is None:
-        raise UserError(f"{args.truth}: frames.csv has no ground-truth theta columns")
-    if truth_seq.thetas.shape != thetas.shape:
-        raise UserError(f"{args.estimate}: {thetas.shape[0]} frames x {thetas.shape[1]} segments,"
-                        f" but {args.truth} has {truth_seq.thetas.shape[0]} x "
-                        f"{truth_seq.thetas.shape[1]}")
-    report = compare(thetas, truth_seq.thetas, window=args.window)
+    report = compare(thetas, _truth_for(args.estimate, thetas, args.truth), window=args.window)
     n_seg = thetas.shape[1]
     lines = [f"{'':<16}" + "".join(f"{f'segment {i + 1}':>12}" for i in range(n_seg)),
              f"{'RMS (deg)':<16}" + "".join(f"{v:>12.4f}" for v in np.degrees(report.rms)),
@@ -434,21 +439,11 @@ def _run_bench_accuracy(args: argparse.Namespace) -> str:
 # ------------------------------------------------------------------------------------------ plot
 def _run_plot(args: argparse.Namespace) -> str:
     from apcc_graph.estimate_io import load_theta_csv
-    from apcc_graph.io import load_sequence
     from apcc_graph.plots import angles_figure, check_figure_path, save_figure
 
     check_figure_path(args.output)
     timestamps, thetas, sigmas = load_theta_csv(Path(args.estimate) / "theta.csv")
-    truth = None
-    if args.truth is not None:
-        seq = load_sequence(args.truth)
-        if seq.thetas is None:
-            raise UserError(f"{args.truth}: frames.csv has no ground-truth theta columns")
-        if seq.thetas.shape != thetas.shape:
-            raise UserError(f"{args.estimate}: {thetas.shape[0]} frames x {thetas.shape[1]} "
-                            f"segments, but {args.truth} has {seq.thetas.shape[0]} x "
-                            f"{seq.thetas.shape[1]}")
-        truth = seq.thetas
+    truth = None if args.truth is None else _truth_for(args.estimate, thetas, args.truth)
     fig = angles_figure(timestamps, thetas, sigmas, truth, n_sigma=args.sigmas,
                         label=Path(args.estimate).name or "estimate")
     return f"wrote {save_figure(fig, args.output)}"
