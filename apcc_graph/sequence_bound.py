@@ -1,0 +1,143 @@
+"""The Cramer-Rao bound of a whole sequence's angles: every observation once, points as
+nuisance.
+
+For a simulation (true angles, true points, which observation belongs to which track and which
+are outliers) and the pixel noise, the Fisher information of all angles ``theta[f, j]`` is the
+sum over tracks of each track's information with its 3-D point eliminated (Schur complement:
+what bundle adjustment sees when every track has its own unknown point), plus an optional prior
+on the first frame. Its inverse bounds the covariance of any unbiased estimator; the per-angle
+bound is the square root of its diagonal. Outliers carry no information and are left out; each
+track is its own point, even when the simulator re-used a scene point for a later track (no
+re-identification). The maths is that of the projection factor (:mod:`factors.projection`),
+evaluated at the truth with noise-free pixels; see ``docs/estimation.md``.
+
+The information matrix is dense, ``(F S)^2``: 26 MB for 600 frames of three segments, 650 MB
+for 3000; use :func:`sequence_bound` on a window of a longer sequence (the bound is flat along
+a sequence whose tracks are short against it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+from apcc_graph.simulate import Simulation
+from factors.projection import CameraChain, build_observations, chunk_tracks, reduced_system
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SequenceBound:
+    """Per-frame, per-angle Cramer-Rao bound of a sequence.
+
+    Attributes:
+        sigmas: ``(F, S)`` the smallest standard deviation an unbiased estimator can have for
+            each angle (radians); ``inf`` where the data do not determine it.
+        theta0_sigma: the start prior it was computed with (radians), or ``None``.
+    """
+
+    sigmas: FloatArray
+    theta0_sigma: float | None
+
+    def rms(self, frames: slice | None = None) -> FloatArray:
+        """``(S,)`` RMS of the per-angle bound over ``frames`` (default all), radians: the
+        figure to set beside an estimator's RMS error over the same frames."""
+        rows = self.sigmas if frames is None else self.sigmas[frames]
+        return np.sqrt(np.mean(rows**2, axis=0))
+
+    def window_rms(self, window: int = 100) -> FloatArray:
+        """``(W, S)`` :meth:`rms` over consecutive windows of ``window`` frames."""
+        starts = range(0, len(self.sigmas), window)
+        return np.array([self.rms(slice(s, s + window)) for s in starts])
+
+
+def fisher_information(simulation: Simulation, noise_px: float,
+                       theta0_sigma: float | None = math.radians(0.1),
+                       max_track_frames: int | None = None) -> FloatArray:
+    """The ``(F S, F S)`` Fisher information of all angles, index ``f * S + j``.
+
+    Args:
+        simulation: the simulated sequence and its ground truth.
+        noise_px: standard deviation of the pixel noise (pixels, per coordinate).
+        theta0_sigma: prior standard deviation on each angle of frame 0 (radians); ``None``
+            for none (vision alone).
+        max_track_frames: cut tracks into pieces of at most this many frames, each with its
+            own point (what an estimator that keeps only that much of a track can know);
+            ``None`` for whole tracks.
+    """
+    if not noise_px > 0.0:
+        raise ValueError(f"noise_px = {noise_px!r}: expected > 0 (pixels)")
+    seq = simulation.sequence
+    robot = seq.robot
+    assert seq.thetas is not None
+    n_frames, S = seq.n_frames, seq.n_segments
+    info = np.zeros((n_frames * S, n_frames * S))
+    for cam in seq.tracks:
+        camera = robot.cameras[cam]
+        assert camera is not None
+        tracks = seq.tracks[cam]
+        inlier = ~simulation.outliers[cam]
+        ids = tracks.track_ids.copy()
+        if max_track_frames is not None:
+            start = _track_starts(tracks.frames, ids)
+            ids = ids * (n_frames + 1) + (tracks.frames - start) // max_track_frames
+        xy = camera.normalized(simulation.clean_uv[cam])
+        obs = build_observations(cam, tracks.frames, ids, xy,
+                                 camera.pixel_jacobian(xy) / noise_px, inlier)
+        landmark = np.zeros(obs.n_tracks, dtype=np.int64)
+        order = np.lexsort((tracks.frames[inlier], ids[inlier]))
+        landmark[obs.tracks] = simulation.landmarks[cam][inlier][order]
+        chain = CameraChain(tuple(robot.segments[:cam + 1]), camera.tip_T_cam,
+                            seq.world_T_base, seq.psis)
+        n = cam + 1
+        for chunk in chunk_tracks(obs):
+            part = obs.select(chunk)
+            first, last = int(part.frames.min()), int(part.frames.max())
+            out = reduced_system(part, chain, seq.thetas[first:last + 1], first,
+                                 np.ones(len(part)), simulation.points_world[landmark[chunk]],
+                                 refine_points=False)
+            index = ((np.arange(first, last + 1) * S)[:, None] + np.arange(n)).ravel()
+            info[np.ix_(index, index)] += out.H
+    if theta0_sigma is not None:
+        info[np.arange(S), np.arange(S)] += 1.0 / theta0_sigma**2
+    return info
+
+
+def _track_starts(frames: NDArray[np.int64], ids: NDArray[np.int64]) -> NDArray[np.int64]:
+    """First frame of each row's track."""
+    unique, inverse = np.unique(ids, return_inverse=True)
+    first = np.full(len(unique), np.iinfo(np.int64).max)
+    np.minimum.at(first, inverse, frames)
+    return first[inverse]
+
+
+def sequence_bound(simulation: Simulation, noise_px: float,
+                   theta0_sigma: float | None = math.radians(0.1),
+                   max_track_frames: int | None = None) -> SequenceBound:
+    """The per-frame, per-angle Cramer-Rao bound of a simulation (radians).
+
+    Args: as :func:`fisher_information`.
+
+    Returns:
+        The bound; angles the data leave undetermined (a frame no camera saw, no start prior
+        and no motion) are ``inf``.
+    """
+    info = fisher_information(simulation, noise_px, theta0_sigma, max_track_frames)
+    n_frames, S = simulation.sequence.n_frames, simulation.sequence.n_segments
+    try:
+        U = scipy.linalg.cholesky(info, lower=False, check_finite=False)
+        U_inv = scipy.linalg.solve_triangular(U, np.eye(len(info)), check_finite=False)
+        variance = np.einsum("ij,ij->i", U_inv, U_inv)  # diag(U^-1 U^-T)
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(info)
+        tol = 1e-10 * max(float(lam[-1]), 1e-300)
+        good = lam > tol
+        variance = (vec[:, good] ** 2) @ (1.0 / lam[good])
+        null = np.sum(vec[:, ~good] ** 2, axis=1) > 1e-9
+        variance[null] = np.inf
+    return SequenceBound(np.sqrt(variance).reshape(n_frames, S), theta0_sigma)

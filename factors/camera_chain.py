@@ -1,0 +1,72 @@
+"""Tip-camera poses along the APCC chain and their derivatives, vectorised over frames.
+
+Camera ``c`` rides on segment ``c`` (0-based). At frame ``f``, with the base pose known::
+
+    world_T_cam(f) = world_T_base(f) . T_0(theta_f0) ... T_c(theta_fc) . tip_T_cam
+
+where ``T_j`` is the APCC 2L-5R transform ``base_T_tip`` of segment j
+(:func:`apcc_graph.kinematics.apcc_transform`). The derivatives are matrix derivatives,
+``d world_T_cam / d theta_fj = P_j . dT_j . S_j+1`` with the prefix ``P_j = world_T_base T_0 ...
+T_j-1`` and the suffix ``S_j+1 = T_j+1 ... T_c tip_T_cam``; their bottom rows are zero. Units:
+metres and radians.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from apcc_graph.kinematics import apcc_transform, apcc_transform_derivative
+from apcc_graph.segment import Segment
+
+FloatArray = NDArray[np.float64]
+
+
+def camera_poses(
+    thetas: ArrayLike,
+    segments: Sequence[Segment],
+    tip_T_cam: ArrayLike,
+    world_T_base: ArrayLike | None = None,
+    psis: ArrayLike | None = None,
+    derivatives: bool = True,
+) -> tuple[FloatArray, FloatArray | None]:
+    """``world_T_cam`` of a camera on the last of ``segments``, for every frame.
+
+    Args:
+        thetas: ``(F, n)`` angles of segments ``0..n-1`` (radians), ``n = len(segments)``.
+        segments: the segments from the base to the camera's segment.
+        tip_T_cam: ``(4, 4)`` the camera's mounting on its segment's tip.
+        world_T_base: ``(F, 4, 4)`` or ``(4, 4)`` robot base poses; ``None`` for identity.
+        psis: ``(F, n)`` bending-plane angles (radians); ``None`` for a planar robot.
+        derivatives: also return the derivatives.
+
+    Returns:
+        ``poses`` ``(F, 4, 4)`` and, with ``derivatives``, ``d poses`` ``(F, n, 4, 4)``:
+        ``d world_T_cam(f) / d theta_fj``; otherwise ``None``.
+    """
+    thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
+    n_frames, n = thetas.shape
+    if n != len(segments):
+        raise ValueError(f"thetas has {n} columns for {len(segments)} segments")
+    psis = np.zeros_like(thetas) if psis is None else np.broadcast_to(
+        np.asarray(psis, dtype=float), thetas.shape)
+    M = np.asarray(tip_T_cam, dtype=float)
+    T = [apcc_transform(thetas[:, j], s, psis[:, j]) for j, s in enumerate(segments)]
+    prefix = [np.broadcast_to(np.eye(4) if world_T_base is None
+                              else np.asarray(world_T_base, dtype=float), (n_frames, 4, 4))]
+    for j in range(n):
+        prefix.append(prefix[-1] @ T[j])
+    poses = prefix[n] @ M
+    if not derivatives:
+        return poses, None
+    suffix = [np.broadcast_to(M, (n_frames, 4, 4))]
+    for j in range(n - 1, 0, -1):
+        suffix.append(T[j] @ suffix[-1])
+    suffix.reverse()  # suffix[j] = T_j+1 ... T_n-1 M
+    d_poses = np.empty((n_frames, n, 4, 4))
+    for j, s in enumerate(segments):
+        dT = apcc_transform_derivative(thetas[:, j], s, psis[:, j])[0]
+        d_poses[:, j] = prefix[j] @ dT @ suffix[j]
+    return poses, d_poses
