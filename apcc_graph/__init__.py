@@ -27,7 +27,7 @@ _EXPORTS = {
     "estimate": "apcc_graph.api",
     "Estimate": "apcc_graph.estimation.result",
     "FixedLagSmoother": "apcc_graph.estimation.smoother",
-    "GraphOptions": "apcc_graph.estimation.batch",
+    "GraphOptions": "apcc_graph.estimation.options",
     "FrameObservations": "apcc_graph.sequence",
     "Sequence": "apcc_graph.sequence",
     "load_sequence": "apcc_graph.io",

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from apcc_graph.simulate import Simulation
 from factors.projection import CameraChain, build_observations, chunk_tracks, reduced_system
+from factors.track_points import cut_tracks
 
 FloatArray = NDArray[np.float64]
 
@@ -82,10 +83,7 @@ def fisher_information(simulation: Simulation, noise_px: float,
         assert camera is not None
         tracks = seq.tracks[cam]
         inlier = ~simulation.outliers[cam]
-        ids = tracks.track_ids.copy()
-        if max_track_frames is not None:
-            start = _track_starts(tracks.frames, ids)
-            ids = ids * (n_frames + 1) + (tracks.frames - start) // max_track_frames
+        ids = cut_tracks(tracks.frames, tracks.track_ids, max_track_frames)
         xy = camera.normalized(simulation.clean_uv[cam])
         obs = build_observations(cam, tracks.frames, ids, xy,
                                  camera.pixel_jacobian(xy) / noise_px, inlier)
@@ -106,14 +104,6 @@ def fisher_information(simulation: Simulation, noise_px: float,
     if theta0_sigma is not None:
         info[np.arange(S), np.arange(S)] += 1.0 / theta0_sigma**2
     return info
-
-
-def _track_starts(frames: NDArray[np.int64], ids: NDArray[np.int64]) -> NDArray[np.int64]:
-    """First frame of each row's track."""
-    unique, inverse = np.unique(ids, return_inverse=True)
-    first = np.full(len(unique), np.iinfo(np.int64).max)
-    np.minimum.at(first, inverse, frames)
-    return first[inverse]
 
 
 def sequence_bound(simulation: Simulation, noise_px: float,

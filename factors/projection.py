@@ -40,7 +40,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.segment import Segment
 from factors.camera_chain import camera_poses
-from factors.track_points import MIN_DEPTH, TrackObservations, project, segment_sum, triangulate
+from factors.track_points import (
+    TrackObservations,
+    project_rows,
+    robust_triangulate,
+    segment_sum,
+    triangulate_rows,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -57,7 +63,8 @@ class ReducedSystem:
     Attributes:
         H: ``(D, D)`` information, ``D = frames x (camera + 1)``, frame-major.
         g: ``(D,)`` gradient of half the cost.
-        cost: weighted sum of squared whitened residuals at the optimal points.
+        cost: weighted sum of squared whitened residuals at the points (the triangulation's
+            optimum), so the same angles always give the same cost.
         points: ``(T, 3)`` the points (world, metres).
         residuals: ``(N,)`` unweighted whitened residual norms per row (pixel-noise units);
             ``inf`` where the point is behind the camera.
@@ -90,18 +97,21 @@ class CameraChain:
                             derivatives)
 
 
-def _residuals(obs: TrackObservations, R: FloatArray, o: FloatArray, points: FloatArray
-               ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    q, m, dm = project(R, o, points[obs.tracks])
-    r = np.einsum("nij,nj->ni", obs.whiten, m - obs.xy)
-    valid = q[:, 2] > MIN_DEPTH
-    return q, r, dm, valid
+def _row_poses(chain: CameraChain, thetas: FloatArray, first: int, frames: NDArray[np.int64],
+               derivatives: bool) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Row-last camera orientation ``(3, 3, N)``, position ``(3, N)`` and pose derivatives
+    ``(4, 4, n, N)`` of each row's frame."""
+    poses, d_poses = chain.poses(thetas, first, derivatives)
+    lf = frames - first
+    P = np.moveaxis(poses, 0, -1)[:, :, lf]
+    dP = None if d_poses is None else np.moveaxis(d_poses, (0, 1), (-1, -2))[..., lf]
+    return np.ascontiguousarray(P[:3, :3]), np.ascontiguousarray(P[:3, 3]), dP
 
 
 def residual_norms(obs: TrackObservations, chain: CameraChain, thetas: FloatArray, first: int,
                    weights: FloatArray, points: FloatArray | None = None
                    ) -> tuple[FloatArray, FloatArray]:
-    """Whitened residual norms per row at re-triangulated points, and the points.
+    """Whitened residual norms per row at re-triangulated points, and the ``(T, 3)`` points.
 
     Args:
         obs: the tracks; their frames lie in ``first .. first + len(thetas) - 1``.
@@ -111,12 +121,22 @@ def residual_norms(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
         weights: ``(N,)`` row weights used to triangulate.
         points: starting points (previous solution) or ``None``.
     """
-    poses, _ = chain.poses(thetas, first, derivatives=False)
-    lf = obs.frames - first
-    R, o = poses[lf, :3, :3], poses[lf, :3, 3]
-    points = triangulate(obs, R, o, weights, points)
-    _, r, _, valid = _residuals(obs, R, o, points)
-    return np.where(valid, np.linalg.norm(r, axis=1), np.inf), points
+    Rb, ob, _ = _row_poses(chain, thetas, first, obs.frames, False)
+    pts = triangulate_rows(obs, Rb, ob, weights, None if points is None else
+                       np.ascontiguousarray(points.T))
+    proj = project_rows(obs, Rb, ob, pts[:, obs.tracks])
+    norms = np.where(proj.valid, np.sqrt(proj.r[0] ** 2 + proj.r[1] ** 2), np.inf)
+    return norms, pts.T.copy()
+
+
+def robust_residual_norms(obs: TrackObservations, chain: CameraChain, thetas: FloatArray,
+                          first: int, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Like :func:`residual_norms`, but each track's point is found robustly from scratch
+    (:func:`factors.track_points.robust_triangulate`): the outlier decisions of a new
+    estimate start here."""
+    Rb, ob, _ = _row_poses(chain, thetas, first, obs.frames, False)
+    points, norms = robust_triangulate(obs, np.moveaxis(Rb, -1, 0), ob.T, weights)
+    return norms, points
 
 
 def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArray, first: int,
@@ -138,70 +158,79 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
     """
     n = len(chain.segments)
     n_frames = len(thetas)
-    poses, d_poses = chain.poses(thetas, first, derivatives=jacobians)
-    lf = obs.frames - first
-    R, o = poses[lf, :3, :3], poses[lf, :3, 3]
-    if refine_points or points is None:
-        points = triangulate(obs, R, o, weights, points)
-    q, r_raw, dm, valid = _residuals(obs, R, o, points)
-    norms = np.where(valid, np.linalg.norm(r_raw, axis=1), np.inf)
-    sw = np.sqrt(np.where(valid, weights, 0.0))
-    r = r_raw * sw[:, None]
+    Rb, ob, dP = _row_poses(chain, thetas, first, obs.frames, jacobians)
+    pts = None if points is None else np.ascontiguousarray(points.T)
+    if refine_points or pts is None:
+        pts = triangulate_rows(obs, Rb, ob, weights, pts)
+    proj = project_rows(obs, Rb, ob, pts[:, obs.tracks])
+    norms = np.where(proj.valid, np.sqrt(proj.r[0] ** 2 + proj.r[1] ** 2), np.inf)
+    sw = np.sqrt(np.where(proj.valid, weights, 0.0))
+    r = proj.r * sw
     if not jacobians:
-        return ReducedSystem(np.zeros((0, 0)), np.zeros(0), float(np.sum(r * r)), points, norms)
-    assert d_poses is not None
-    WA = np.einsum("nij,njk->nik", obs.whiten, dm) * sw[:, None, None]  # W dm/dq, weighted
-    Jp = np.einsum("nik,nlk->nil", WA, R)  # d r / d p = W dm/dq R^T
-    d = points[obs.tracks] - o
-    dR, do = d_poses[lf, :, :3, :3], d_poses[lf, :, :3, 3]
-    # q = R^T (p - o): dq/dtheta_j = dR_j^T (p - o) - R^T do_j.
-    dq = np.einsum("njba,nb->nja", dR, d) - np.einsum("nba,njb->nja", R, do)
-    Jt = np.einsum("nik,njk->nij", WA, dq)  # (N, 2, n)
+        return ReducedSystem(np.zeros((0, 0)), np.zeros(0), float(np.sum(r * r)), pts.T.copy(),
+                             norms)
+    assert dP is not None
+    WA = proj.whitened_dm(obs.whiten_t) * sw  # (2, 3, N)
+    Jp = np.einsum("ain,jin->ajn", WA, Rb)  # d r / d p = W dm/dq R^T
+    # q = R^T (p - o): dq/dtheta_j = dR_j^T (p - o) - R^T do_j, (3, n, N).
+    dq = (np.einsum("bijn,bn->ijn", dP[:3, :3], proj.d)
+          - np.einsum("bin,bjn->ijn", Rb, dP[:3, 3]))
+    Jt = np.einsum("ain,ijn->ajn", WA, dq)  # (2, n, N)
 
+    lf = obs.frames - first
     # Frame blocks of sum_k Jt^T Jt and sum_k Jt^T r.
-    Hk = np.einsum("nki,nkj->nij", Jt, Jt).reshape(len(lf), n * n)
-    gk = np.einsum("nki,nk->ni", Jt, r)
-    H_blocks = np.stack([np.bincount(lf, Hk[:, c], n_frames) for c in range(n * n)], axis=1)
-    g = np.stack([np.bincount(lf, gk[:, c], n_frames) for c in range(n)], axis=1).ravel()
+    Hk = np.einsum("ain,ajn->ijn", Jt, Jt).reshape(n * n, -1)
+    gk = np.einsum("ain,an->in", Jt, r)
     D = n_frames * n
     H = np.zeros((D, D))
+    diag = np.arange(n_frames) * n
     for i in range(n):
         for j in range(n):
-            H[np.arange(i, D, n), np.arange(j, D, n)] = H_blocks[:, i * n + j]
+            H[diag + i, diag + j] = np.bincount(lf, Hk[i * n + j], n_frames)
+    g = np.stack([np.bincount(lf, gk[c], n_frames) for c in range(n)], axis=1).ravel()
 
     # Schur complement of the points: with C_t = L_t L_t^T, V_k = B_k L_t^-T and
     # y_t = L_t^-1 b_t, the correction is -V V^T and the gradient's -V y.
-    C = segment_sum(np.einsum("nki,nkj->nij", Jp, Jp), obs.starts)
-    C += (1e-9 * np.trace(C, axis1=1, axis2=2) + 1e-12)[:, None, None] * np.eye(3)
-    b = segment_sum(np.einsum("nki,nk->ni", Jp, r), obs.starts)
-    L_inv = np.linalg.inv(np.linalg.cholesky(C))
+    C = np.moveaxis(segment_sum(np.einsum("ain,ajn->ijn", Jp, Jp), obs.starts), -1, 0)
+    C += (1e-12 * np.trace(C, axis1=1, axis2=2) + 1e-12)[:, None, None] * np.eye(3)
+    b = segment_sum(np.einsum("ain,an->in", Jp, r), obs.starts).T  # (T, 3)
+    L_inv = np.linalg.inv(np.linalg.cholesky(C))  # (T, 3, 3)
     y = np.einsum("tij,tj->ti", L_inv, b)
-    B = np.einsum("nki,nkj->nij", Jt, Jp)  # (N, n, 3)
-    V = np.einsum("nja,nba->njb", B, L_inv[obs.tracks])
+    B = np.einsum("ain,ajn->ijn", Jt, Jp)  # (n, 3, N)
+    V = np.einsum("jan,ban->jbn", B, np.moveaxis(L_inv, 0, -1)[:, :, obs.tracks])
     M = np.zeros((D, 3 * obs.n_tracks))
-    rows = (lf * n)[:, None, None] + np.arange(n)[None, :, None]
-    cols = (3 * obs.tracks)[:, None, None] + np.arange(3)[None, None, :]
+    rows = (lf * n)[None, None, :] + np.arange(n)[:, None, None]
+    cols = (3 * obs.tracks)[None, None, :] + np.arange(3)[None, :, None]
     M[rows, cols] = V
     H -= M @ M.T
     g -= M @ y.ravel()
-    cost = float(np.sum(r * r) - np.sum(y * y))
-    return ReducedSystem(H, g, max(cost, 0.0), points, norms)
+    return ReducedSystem(H, g, float(np.sum(r * r)), pts.T.copy(), norms)
 
 
 def compress(H: FloatArray, g: FloatArray, cost: float) -> tuple[FloatArray, FloatArray]:
     """``A`` ``(D + 1, D)`` and ``e`` ``(D + 1,)`` with ``A^T A = H``, ``A^T e = g`` and
-    ``|e|^2 = cost`` (when ``cost >= g^T H^-1 g``, as it is for a least-squares cost).
+    ``|e|^2 = cost`` (when ``cost >= g^T H^+ g``, as it is for a least-squares cost).
 
-    ``H`` is positive semi-definite; a relative jitter of ``1e-12`` keeps its Cholesky factor
-    defined where a chunk leaves some direction unobserved (it adds no information to speak of).
+    ``H`` is positive semi-definite. The Cholesky factor is used when it exists (with a relative
+    jitter of ``1e-12``, which adds no information to speak of); where round-off leaves ``H``
+    indefinite in a direction the chunk does not observe, an eigen-decomposition drops the
+    directions with eigenvalues below ``1e-12`` of the largest.
     """
     D = len(g)
-    jitter = 1e-12 * max(float(np.max(np.diag(H), initial=0.0)), 1e-300)
-    U = scipy.linalg.cholesky(H + jitter * np.eye(D), lower=False, check_finite=False)
-    e = scipy.linalg.solve_triangular(U, g, trans="T", check_finite=False)
-    rest = cost - float(e @ e)
+    scale = max(float(np.max(np.diag(H), initial=0.0)), 1e-300)
     A = np.zeros((D + 1, D), order="F")
-    A[:D] = U
+    try:
+        U = scipy.linalg.cholesky(H + 1e-12 * scale * np.eye(D), lower=False,
+                                  check_finite=False)
+        e = scipy.linalg.solve_triangular(U, g, trans="T", check_finite=False)
+        A[:D] = U
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(H)
+        keep = lam > 1e-12 * max(float(lam[-1]), scale)
+        root = np.sqrt(np.where(keep, lam, 0.0))
+        A[:D] = root[:, None] * vec.T
+        e = np.where(keep, (vec.T @ g) / np.where(keep, root, 1.0), 0.0)
+    rest = cost - float(e @ e)
     return A, np.append(e, np.sqrt(max(rest, 0.0)))
 
 
@@ -244,10 +273,15 @@ class ProjectionFactor:
         self.points = out.points
         return out
 
-    def residual_norms(self, thetas: FloatArray) -> FloatArray:
-        """Whitened residual norms of every row at ``thetas`` (for robust decisions)."""
-        norms, self.points = residual_norms(self.obs, self.chain, thetas, self.first,
-                                            self.weights, self.points)
+    def residual_norms(self, thetas: FloatArray, robust: bool = False) -> FloatArray:
+        """Whitened residual norms of every row at ``thetas`` (for robust decisions); with
+        ``robust``, each track's point is found afresh, robustly, ignoring the weights."""
+        if robust:
+            norms, self.points = robust_residual_norms(self.obs, self.chain, thetas, self.first,
+                                                       np.ones(len(self.obs)))
+        else:
+            norms, self.points = residual_norms(self.obs, self.chain, thetas, self.first,
+                                                self.weights, self.points)
         return norms
 
     def error_func(self, this: gtsam.CustomFactor, values: gtsam.Values,

@@ -16,11 +16,17 @@ inlier.
 its rows' ``r_k``, solved by Levenberg-Marquardt in inverse-depth coordinates anchored at the
 track's first row (``p = o_a + R_a (alpha, beta, 1) / rho``), which stays well conditioned for the
 small baselines of a tip camera; all tracks are solved at once (vectorised).
+
+Layout: per-row arrays inside this module and :mod:`factors.projection` keep the row index
+*last* (``R`` as ``(3, 3, N)``, points as ``(3, N)``): numpy's einsum over small leading axes
+is then 10-25x faster than over trailing ones. The public functions take the usual row-first
+arrays.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,6 +36,9 @@ IntArray = NDArray[np.int64]
 
 MIN_DEPTH = 0.02
 """Metres: a point closer than this in front of a camera it is seen from is not a valid point."""
+MIN_INVERSE_DEPTH = 1e-3
+"""1/metres: a point's inverse depth from its track's first camera stays above this (1 km); a
+track whose rays meet behind the cameras (noise without parallax) keeps its point there."""
 DEFAULT_DEPTH = 3.0
 """Metres: depth a track's point starts at when its rays do not fix it."""
 
@@ -81,6 +90,16 @@ class TrackObservations:
         starts = np.append(np.flatnonzero(new), len(ids)).astype(np.int64)
         return cls(camera, frames, tracks.astype(np.int64), xy, whiten, ids[new], starts)
 
+    @cached_property
+    def xy_t(self) -> FloatArray:
+        """``(2, N)`` :attr:`xy`, row index last."""
+        return np.ascontiguousarray(self.xy.T)
+
+    @cached_property
+    def whiten_t(self) -> FloatArray:
+        """``(2, 2, N)`` :attr:`whiten`, row index last."""
+        return np.ascontiguousarray(np.moveaxis(self.whiten, 0, -1))
+
     @property
     def n_tracks(self) -> int:
         """Number of tracks T."""
@@ -101,11 +120,78 @@ class TrackObservations:
                                  self.whiten[rows], self.ids[tracks], starts)
 
 
+def cut_tracks(frames: ArrayLike, track_ids: ArrayLike, max_frames: int | None) -> IntArray:
+    """New track ids that cut every track into pieces of at most ``max_frames`` frames
+    (counted from the track's first frame), each piece its own track; ``None`` keeps them.
+
+    The ids stay non-negative and distinct between pieces of different tracks.
+    """
+    frames = np.asarray(frames, dtype=np.int64)
+    ids = np.asarray(track_ids, dtype=np.int64)
+    if max_frames is None or len(ids) == 0:
+        return ids.copy()
+    if max_frames < 1:
+        raise ValueError(f"max_frames = {max_frames}: expected at least 1 frame")
+    unique, inverse = np.unique(ids, return_inverse=True)
+    first = np.full(len(unique), np.iinfo(np.int64).max)
+    np.minimum.at(first, inverse, frames)
+    piece = (frames - first[inverse]) // max_frames
+    return inverse * (int(piece.max()) + 1) + piece
+
+
 def segment_sum(values: FloatArray, starts: IntArray) -> FloatArray:
-    """Sums of ``values`` over each track's rows (``starts`` as in :class:`TrackObservations`)."""
-    if len(values) == 0:
-        return np.zeros((len(starts) - 1,) + values.shape[1:])
-    return np.add.reduceat(values, starts[:-1], axis=0)
+    """Sums of ``values`` over each track's rows along the *last* axis (``starts`` as in
+    :class:`TrackObservations`): ``(..., N)`` in, ``(..., T)`` out."""
+    if values.shape[-1] == 0:
+        return np.zeros(values.shape[:-1] + (len(starts) - 1,))
+    return np.add.reduceat(values, starts[:-1], axis=-1)
+
+
+def rows_last(R: FloatArray, o: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(N, 3, 3)``, ``(N, 3)`` poses to the row-last ``(3, 3, N)``, ``(3, N)``."""
+    return np.ascontiguousarray(np.moveaxis(R, 0, -1)), np.ascontiguousarray(o.T)
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Row-last projection of world points: ``q = R^T (p - o)``, ``m`` and whitened ``r``.
+
+    Attributes:
+        d: ``(3, N)`` ``p - o`` (world frame).
+        q: ``(3, N)`` the point in the camera frame.
+        iz: ``(N,)`` ``1 / q_z`` (depth clamped at :data:`MIN_DEPTH`).
+        m: ``(2, N)`` the projection.
+        r: ``(2, N)`` whitened residual ``W (m - x)``.
+        valid: ``(N,)`` the point is in front of the camera.
+    """
+
+    d: FloatArray
+    q: FloatArray
+    iz: FloatArray
+    m: FloatArray
+    r: FloatArray
+    valid: NDArray[np.bool_]
+
+    def whitened_dm(self, whiten_t: FloatArray) -> FloatArray:
+        """``(2, 3, N)`` ``W dm/dq``."""
+        iz, m = self.iz, self.m
+        out = np.empty((2, 3, len(iz)))
+        out[:, 0] = whiten_t[:, 0] * iz
+        out[:, 1] = whiten_t[:, 1] * iz
+        out[:, 2] = -(whiten_t[:, 0] * m[0] + whiten_t[:, 1] * m[1]) * iz
+        return out
+
+
+def project_rows(obs: TrackObservations, Rb: FloatArray, ob: FloatArray,
+                 points_b: FloatArray) -> Projection:
+    """:class:`Projection` of each row's track point, row-last (``points_b`` ``(3, N)``)."""
+    d = points_b - ob
+    q = np.einsum("jin,jn->in", Rb, d)
+    valid = q[2] > MIN_DEPTH
+    iz = 1.0 / np.maximum(q[2], MIN_DEPTH)
+    m = q[:2] * iz
+    r = np.einsum("abn,bn->an", obs.whiten_t, m - obs.xy_t)
+    return Projection(d, q, iz, m, r, valid)
 
 
 def project(R: FloatArray, o: FloatArray, points: FloatArray
@@ -130,23 +216,108 @@ def project(R: FloatArray, o: FloatArray, points: FloatArray
     return q, m, dm
 
 
-def _initial_points(obs: TrackObservations, R: FloatArray, o: FloatArray,
+def _world_rays(obs: TrackObservations, Rb: FloatArray) -> FloatArray:
+    """``(3, N)`` unit rays of the rows in the world frame."""
+    rays = np.einsum("ijn,jn->in", Rb, np.vstack([obs.xy_t, np.ones(len(obs))]))
+    return rays / np.linalg.norm(rays, axis=0)
+
+
+def _initial_points(obs: TrackObservations, Rb: FloatArray, ob: FloatArray,
                     weights: FloatArray) -> FloatArray:
-    """Weighted midpoint of each track's rays, pulled weakly to DEFAULT_DEPTH along the mean
-    ray (so that a track without parallax still gets a point in front of its cameras)."""
-    rays = np.einsum("nij,nj->ni", R, np.column_stack([obs.xy, np.ones(len(obs))]))
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    """``(3, T)`` weighted midpoint of each track's rays, pulled weakly to DEFAULT_DEPTH along
+    the mean ray (so that a track without parallax still gets a point in front of its
+    cameras)."""
+    rays = _world_rays(obs, Rb)
     w = np.where(weights > 0.0, weights, 1e-3)
-    P = np.eye(3) - rays[:, :, None] * rays[:, None, :]
-    A = segment_sum(w[:, None, None] * P, obs.starts)
-    b = segment_sum(w[:, None] * np.einsum("nij,nj->ni", P, o), obs.starts)
-    mean_ray = segment_sum(w[:, None] * rays, obs.starts)
-    mean_ray /= np.maximum(np.linalg.norm(mean_ray, axis=1, keepdims=True), 1e-12)
-    centre = segment_sum(w[:, None] * o, obs.starts) / segment_sum(w, obs.starts)[:, None]
-    lam = 1e-4 * np.trace(A, axis1=1, axis2=2)[:, None]
+    P = np.eye(3)[:, :, None] - rays[:, None, :] * rays[None, :, :]
+    A = segment_sum(w * P, obs.starts)
+    b = segment_sum(w * np.einsum("ijn,jn->in", P, ob), obs.starts)
+    mean_ray = segment_sum(w * rays, obs.starts)
+    mean_ray /= np.maximum(np.linalg.norm(mean_ray, axis=0), 1e-12)
+    centre = segment_sum(w * ob, obs.starts) / segment_sum(w, obs.starts)
+    lam = 1e-4 * np.einsum("iit->t", A)
     b = b + lam * (centre + DEFAULT_DEPTH * mean_ray)
-    A = A + lam[:, :, None] * np.eye(3)
-    return np.linalg.solve(A, b[..., None])[..., 0]
+    A = A + lam * np.eye(3)[:, :, None]
+    return np.linalg.solve(np.moveaxis(A, -1, 0), b.T[..., None])[..., 0].T
+
+
+def _segment_median(values: FloatArray, tracks: IntArray, starts: IntArray) -> FloatArray:
+    """Per-track (lower) median of each row of ``values`` ``(d, N)``: ``(d, T)``."""
+    out = np.empty((values.shape[0], len(starts) - 1))
+    middle = starts[:-1] + (starts[1:] - starts[:-1] - 1) // 2
+    for c in range(values.shape[0]):
+        order = np.lexsort((values[c], tracks))
+        out[c] = values[c, order[middle]]
+    return out
+
+
+def robust_weights_from_rays(obs: TrackObservations, R: FloatArray) -> FloatArray:
+    """Rows whose world ray is far from their track's median ray get weight 0, the rest 1.
+
+    ``R``: ``(N, 3, 3)`` camera orientations (or row-last ``(3, 3, N)``). A wrong
+    association's pixel is anywhere in the image, tens of degrees off; a true observation's
+    ray turns only by the parallax of the camera's motion. "Far" is five robust standard
+    deviations of the track's ray angles, and at least 2 degrees.
+    """
+    Rb = R if R.shape[:2] == (3, 3) and R.shape[-1] == len(obs) else np.moveaxis(R, 0, -1)
+    rays = _world_rays(obs, Rb)
+    median = _segment_median(rays, obs.tracks, obs.starts)
+    median /= np.maximum(np.linalg.norm(median, axis=0), 1e-12)
+    angle = np.arccos(np.clip(np.einsum("in,in->n", rays, median[:, obs.tracks]), -1.0, 1.0))
+    spread = _segment_median(angle[None], obs.tracks, obs.starts)[0]
+    limit = np.maximum(5.0 * 1.4826 * spread, np.radians(2.0))
+    return (angle <= limit[obs.tracks]).astype(float)
+
+
+def robust_triangulate(
+    obs: TrackObservations,
+    R: FloatArray,
+    o: FloatArray,
+    weights: FloatArray,
+    points: FloatArray | None = None,
+    scale: float = 3.0,
+    rounds: int = 3,
+) -> tuple[FloatArray, FloatArray]:
+    """Each track's point, robust to wrong associations; and every row's residual norm.
+
+    Starts from the rows whose rays agree with their track's median ray
+    (:func:`robust_weights_from_rays`) when no ``points`` are given, then reweights by the
+    Cauchy weight ``1 / (1 + (|r| / scale)^2)`` of each row's whitened residual for ``rounds``
+    rounds of :func:`triangulate`. Rows with ``weights`` 0 stay out.
+
+    Args:
+        obs: the tracks.
+        R, o: ``(N, 3, 3)``, ``(N, 3)`` camera pose of each row.
+        weights: ``(N,)`` row weights (0: left out).
+        points: ``(T, 3)`` starting points, or ``None``.
+        scale: Cauchy scale (pixel-noise units).
+        rounds: reweighting rounds.
+
+    Returns:
+        ``(T, 3)`` points and ``(N,)`` whitened residual norms at them (``inf`` behind the
+        camera).
+    """
+    Rb, ob = rows_last(R, o)
+    pts = None if points is None else np.ascontiguousarray(points.T)
+    w = weights * (robust_weights_from_rays(obs, Rb) if points is None else 1.0)
+    for _ in range(rounds):
+        pts = triangulate_rows(obs, Rb, ob, w, pts, iterations=4)
+        norms = _norms(project_rows(obs, Rb, ob, pts[:, obs.tracks]))
+        w = weights / (1.0 + (norms / scale) ** 2)
+    pts = triangulate_rows(obs, Rb, ob, w, pts, iterations=10)
+    return pts.T.copy(), _norms(project_rows(obs, Rb, ob, pts[:, obs.tracks]))
+
+
+def _norms(proj: Projection) -> FloatArray:
+    return np.where(proj.valid, np.sqrt(proj.r[0] ** 2 + proj.r[1] ** 2), np.inf)
+
+
+def residual_norms_at(obs: TrackObservations, R: FloatArray, o: FloatArray,
+                      points: FloatArray) -> FloatArray:
+    """``|r_k|`` of every row at the given ``(T, 3)`` points (``inf`` where the point is
+    behind the camera)."""
+    Rb, ob = rows_last(R, o)
+    return _norms(project_rows(obs, Rb, ob, np.ascontiguousarray(points.T)[:, obs.tracks]))
 
 
 def triangulate(
@@ -173,50 +344,71 @@ def triangulate(
     Returns:
         ``(T, 3)`` world points (metres).
     """
-    starts = obs.starts
+    Rb, ob = rows_last(R, o)
+    pts = None if points is None else np.ascontiguousarray(points.T)
+    return triangulate_rows(obs, Rb, ob, weights, pts, iterations, tolerance).T.copy()
+
+
+def triangulate_rows(obs: TrackObservations, Rb: FloatArray, ob: FloatArray, weights: FloatArray,
+                 points: FloatArray | None, iterations: int = 10,
+                 tolerance: float = 1e-9) -> FloatArray:
+    """:func:`triangulate`, row-last: ``Rb`` ``(3, 3, N)``, ``ob`` ``(3, N)``, points
+    ``(3, T)`` in and out."""
+    starts, tracks = obs.starts, obs.tracks
     anchor = starts[:-1]
-    Ra, oa = R[anchor], o[anchor]
+    Ra, oa = Rb[:, :, anchor], ob[:, anchor]
     if points is None:
-        points = _initial_points(obs, R, o, weights)
-    v = np.einsum("tji,tj->ti", Ra, points - oa)
-    bad = ~(v[:, 2] > MIN_DEPTH)
-    v[bad] = np.column_stack([obs.xy[anchor[bad]], np.ones(bad.sum())]) * DEFAULT_DEPTH
-    params = np.column_stack([v[:, 0] / v[:, 2], v[:, 1] / v[:, 2], 1.0 / v[:, 2]])
-    track_of_row = obs.tracks
+        points = _initial_points(obs, Rb, ob, weights)
+    v = np.einsum("jit,jt->it", Ra, points - oa)
+    bad = ~(v[2] > MIN_DEPTH)
+    v[:, bad] = np.vstack([obs.xy_t[:, anchor[bad]], np.ones(bad.sum())]) * DEFAULT_DEPTH
+    params = np.vstack([v[0] / v[2], v[1] / v[2], 1.0 / v[2]])  # (alpha, beta, rho), (3, T)
     sw = np.sqrt(weights)
+    live = weights > 0.0
 
     def evaluate(prm: FloatArray, jacobian: bool):
-        ray = np.column_stack([prm[:, 0], prm[:, 1], np.ones(len(prm))])
-        p = oa + np.einsum("tij,tj->ti", Ra, ray) / prm[:, 2:3]
-        q, m, dm = project(R, o, p[track_of_row])
-        r = np.einsum("nij,nj->ni", obs.whiten, m - obs.xy) * sw[:, None]
-        behind = (q[:, 2] <= MIN_DEPTH) & (weights > 0.0)
-        cost = segment_sum(np.einsum("ni,ni->n", r, r) + behind * 1e12, starts)
+        ray = np.vstack([prm[0], prm[1], np.ones(prm.shape[1])])
+        Rray = np.einsum("ijt,jt->it", Ra, ray)
+        p = oa + Rray / prm[2]
+        proj = project_rows(obs, Rb, ob, p[:, tracks])
+        r = proj.r * sw
+        behind = ~proj.valid & live
+        cost = segment_sum(r[0] ** 2 + r[1] ** 2 + behind * 1e12, starts)
         if not jacobian:
             return cost, p, None, None
-        dp = np.empty((len(prm), 3, 3))
-        dp[:, :, 0] = Ra[:, :, 0] / prm[:, 2:3]
-        dp[:, :, 1] = Ra[:, :, 1] / prm[:, 2:3]
-        dp[:, :, 2] = -np.einsum("tij,tj->ti", Ra, ray) / prm[:, 2:3] ** 2
-        # J = W dm/dq R^T dp/dparam, per row.
-        WA = np.einsum("nij,njk->nik", obs.whiten, dm) * sw[:, None, None]
-        J = np.einsum("nik,nlk,nlj->nij", WA, R, dp[track_of_row])
-        N = segment_sum(np.einsum("nki,nkj->nij", J, J), starts)
-        g = segment_sum(np.einsum("nki,nk->ni", J, r), starts)
+        # d p / d (alpha, beta, rho) per track, (3, 3, T).
+        dp = np.empty((3, 3, prm.shape[1]))
+        dp[:, 0] = Ra[:, 0] / prm[2]
+        dp[:, 1] = Ra[:, 1] / prm[2]
+        dp[:, 2] = -Rray / prm[2] ** 2
+        # J = W dm/dq R^T dp, per row (2, 3, N).
+        Jp = np.einsum("ain,jin->ajn", proj.whitened_dm(obs.whiten_t) * sw, Rb)
+        J = np.einsum("ajn,jkn->akn", Jp, dp[:, :, tracks])
+        N = segment_sum(np.einsum("akn,aln->kln", J, J), starts)
+        g = segment_sum(np.einsum("akn,an->kn", J, r), starts)
         return cost, p, N, g
 
-    lam = np.full(len(params), 1e-3)
+    lam = np.full(params.shape[1], 1e-3)
     cost, p, N, g = evaluate(params, True)
+    eye = np.eye(3)[:, :, None]
     for _ in range(iterations):
-        diag = np.einsum("tii->ti", N)
-        A = N + (lam[:, None] * np.maximum(diag, 1e-12))[:, :, None] * np.eye(3)
-        step = -np.linalg.solve(A, g[..., None])[..., 0]
+        diag = np.maximum(np.einsum("iit->it", N), 1e-12)
+        A = N + lam * diag[:, None, :] * eye
+        At = np.moveaxis(A, -1, 0)
+        step = -np.linalg.solve(At, g.T[..., None])[..., 0].T
+        # Where the step would cross the inverse-depth floor, hold rho there and take the
+        # model's best step in (alpha, beta) alone: the exact minimiser under the bound.
+        low = params[2] + step[2] < MIN_INVERSE_DEPTH
+        if low.any():
+            d_rho = MIN_INVERSE_DEPTH - params[2, low]
+            rhs = g[:2, low] + A[:2, 2, low] * d_rho
+            step[:2, low] = -np.linalg.solve(At[low][:, :2, :2], rhs.T[..., None])[..., 0].T
+            step[2, low] = d_rho
         trial = params + step
-        trial[:, 2] = np.maximum(trial[:, 2], 1e-6)  # keep the point in front of its anchor
         new_cost, _, _, _ = evaluate(trial, False)
         better = new_cost <= cost
-        params = np.where(better[:, None], trial, params)
-        lam = np.where(better, lam * 0.3, lam * 10.0)
+        params = np.where(better, trial, params)
+        lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-9, 1e9)
         cost, p, N, g = evaluate(params, True)
         if np.max(np.abs(step), initial=0.0) < tolerance:
             break

@@ -61,7 +61,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
-from apcc_graph.estimation.batch import GraphOptions, angle_key, loss_scale, reuse_factor
+from apcc_graph.estimation.epipolar_graph import angle_key
+from apcc_graph.estimation.options import GraphOptions, loss_scale, reuse_factor
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.kinematics import apcc_transform_scalar
 from apcc_graph.robot import Robot

@@ -1,0 +1,181 @@
+"""Factor-graph building shared by the batch optimiser and the fixed-lag smoother.
+
+Variables: one ``Vector(S)`` per frame, the angles of all segments (radians), key
+:func:`factors.projection.frame_key`. Factors (``docs/estimation.md``):
+
+- the start prior on the first frame (``theta0``, ``GraphOptions.theta0_sigma`` per angle);
+- a random-walk motion prior between consecutive frames (weak; ``None`` leaves it out);
+- soft joint limits;
+- per camera, the projection factors of its tracks (:class:`CameraTerms`): every observation
+  once, each track's point eliminated, tracks grouped in chunks; row weights hold the robust
+  decisions (:mod:`apcc_graph.estimation.robust`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.robust import gnc_tls_weights
+from apcc_graph.robot import Robot
+from apcc_graph.sequence import Sequence as RobotSequence
+from factors.projection import (
+    CameraChain,
+    ProjectionFactor,
+    TrackObservations,
+    build_observations,
+    chunk_tracks,
+    frame_key,
+)
+from factors.track_points import cut_tracks
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["CameraTerms", "camera_observations", "frame_key", "prior_factors", "thetas_from",
+           "values_from"]
+
+
+def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
+                        min_rows: int = 2, frames: range | None = None,
+                        max_track_frames: int | None = None) -> TrackObservations | None:
+    """Camera ``cam``'s observations as tracks (undistorted, whitened by ``noise_px``).
+
+    Tracks longer than ``max_track_frames`` are cut into pieces with points of their own
+    (:func:`factors.track_points.cut_tracks`); pieces seen in fewer than ``min_rows`` frames
+    are left out; ``None`` when nothing is left. ``frames`` restricts the rows to a range of
+    frames.
+    """
+    camera = sequence.robot.cameras[cam]
+    if camera is None or cam not in sequence.tracks:
+        return None
+    tracks = sequence.tracks[cam]
+    ids = cut_tracks(tracks.frames, tracks.track_ids, max_track_frames)
+    keep = np.ones(len(tracks), dtype=bool)
+    if frames is not None:
+        keep &= (tracks.frames >= frames.start) & (tracks.frames < frames.stop)
+    _, inverse, counts = np.unique(ids[keep], return_inverse=True, return_counts=True)
+    keep[keep] = counts[inverse] >= min_rows
+    if not keep.any():
+        return None
+    bearings = sequence.bearings(cam)[keep]
+    xy = bearings[:, :2] / bearings[:, 2:3]
+    return build_observations(cam, tracks.frames[keep], ids[keep], xy,
+                              camera.pixel_jacobian(xy) / noise_px)
+
+
+def camera_chain(robot: Robot, cam: int, world_T_base: FloatArray | None = None,
+                 psis: FloatArray | None = None) -> CameraChain:
+    """What fixes camera ``cam``'s pose: its segments, mounting, and the base poses."""
+    camera = robot.cameras[cam]
+    assert camera is not None
+    return CameraChain(tuple(robot.segments[:cam + 1]), camera.tip_T_cam, world_T_base, psis)
+
+
+class CameraTerms:
+    """One camera's projection factors (one per chunk of tracks) and their robust weights.
+
+    Args:
+        obs: the camera's tracks.
+        chain: the camera's chain (base poses over the frames the observations index).
+        n_segments: S.
+        frames_per_chunk: see :func:`factors.projection.chunk_tracks`.
+    """
+
+    def __init__(self, obs: TrackObservations, chain: CameraChain, n_segments: int,
+                 frames_per_chunk: int) -> None:
+        self.camera = obs.camera
+        self.chunks = [ProjectionFactor(obs.select(c), chain, n_segments)
+                       for c in chunk_tracks(obs, frames_per_chunk)]
+        self.norms = [np.zeros(len(c.obs)) for c in self.chunks]
+
+    def factors(self) -> list[gtsam.CustomFactor]:
+        """The gtsam factors (weights are read at every linearisation)."""
+        return [c.factor() for c in self.chunks]
+
+    def measure(self, thetas: FloatArray, robust: bool = False) -> None:
+        """Residual norms of every observation at ``thetas`` (``(F, S)``, all frames); with
+        ``robust``, each track's point is found afresh, robustly (the first decisions)."""
+        for i, c in enumerate(self.chunks):
+            self.norms[i] = c.residual_norms(thetas[c.first:c.last + 1], robust=robust)
+
+    def set_weights(self, threshold: float, mu: float) -> int:
+        """GNC weights from the last :meth:`measure`; returns how many rows changed between
+        inlier and outlier (weight above or below one half)."""
+        changed = 0
+        for c, norms in zip(self.chunks, self.norms, strict=True):
+            new = gnc_tls_weights(norms, threshold, mu)
+            changed += int(np.sum((new > 0.5) != (c.weights > 0.5)))
+            c.weights[:] = new
+        return changed
+
+    def inliers_per_frame(self, n_frames: int) -> NDArray[np.int64]:
+        """``(n_frames,)`` observations with weight above one half, per frame."""
+        out = np.zeros(n_frames, dtype=np.int64)
+        for c in self.chunks:
+            out += np.bincount(c.obs.frames[c.weights > 0.5], minlength=n_frames)[:n_frames]
+        return out
+
+    def outlier_rows(self) -> int:
+        """Observations currently judged outliers (weight at most one half)."""
+        return int(sum(np.sum(c.weights <= 0.5) for c in self.chunks))
+
+
+def limit_factor(key: int, theta_max: FloatArray, sigma: float) -> gtsam.CustomFactor:
+    """Soft joint limits of one frame: ``r_j = max(0, |theta_j| - theta_max_j) / sigma``."""
+    theta_max = np.asarray(theta_max, dtype=float)
+    S = len(theta_max)
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values,
+                   H: list[np.ndarray] | None) -> np.ndarray:
+        theta = values.atVector(key)
+        excess = np.abs(theta) - theta_max
+        out = excess > 0.0
+        if H is not None:
+            H[0] = np.diag(np.where(out, np.sign(theta), 0.0) / sigma)
+        return np.where(out, excess, 0.0) / sigma
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(S), [key], error_func)
+
+
+def prior_factors(frames: Iterable[int], timestamps: Sequence[float] | FloatArray,
+                  theta0: FloatArray | None, robot: Robot, options: GraphOptions,
+                  limits: bool = True) -> list[gtsam.NonlinearFactor]:
+    """Start prior (when ``theta0`` is given, on the first of ``frames``), motion priors
+    between consecutive frames and joint limits.
+
+    ``timestamps[f]`` is frame f's time (seconds).
+    """
+    frames = list(frames)
+    S = robot.n_segments
+    out: list[gtsam.NonlinearFactor] = []
+    if theta0 is not None:
+        out.append(gtsam.PriorFactorVector(
+            frame_key(frames[0]), np.asarray(theta0, dtype=float),
+            gtsam.noiseModel.Isotropic.Sigma(S, options.theta0_sigma)))
+    theta_max = np.array([s.theta_max for s in robot.segments])
+    for prev, f in zip(frames[:-1], frames[1:], strict=True):
+        if options.motion_sigma is not None:
+            dt = max(float(timestamps[f] - timestamps[prev]), 1e-9)
+            out.append(gtsam.BetweenFactorVector(
+                frame_key(prev), frame_key(f), np.zeros(S),
+                gtsam.noiseModel.Isotropic.Sigma(S, options.motion_sigma * np.sqrt(dt))))
+    if limits:
+        out += [limit_factor(frame_key(f), theta_max, options.limit_sigma) for f in frames]
+    return out
+
+
+def values_from(thetas: FloatArray, frames: Iterable[int]) -> gtsam.Values:
+    """Values holding ``thetas[i]`` at frame ``frames[i]``'s key."""
+    values = gtsam.Values()
+    for f, theta in zip(frames, thetas, strict=True):
+        values.insert(frame_key(int(f)), np.asarray(theta, dtype=float))
+    return values
+
+
+def thetas_from(values: gtsam.Values, frames: Iterable[int]) -> FloatArray:
+    """``(F, S)`` angles of ``frames`` in ``values``."""
+    return np.array([values.atVector(frame_key(int(f))) for f in frames])

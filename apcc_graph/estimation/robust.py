@@ -1,0 +1,55 @@
+"""Outlier decisions per observation: graduated non-convexity with a truncated quadratic.
+
+Each observation's whitened reprojection error ``r`` (pixel-noise units) is judged against its
+own track's point. The loss is the truncated quadratic (TLS) ``min(r^2, c^2)``: an observation
+further than ``c`` from its track's point is an outlier and contributes nothing. Minimising it
+directly is non-convex, so the estimators follow graduated non-convexity (Yang, Antonante,
+Tzoumas and Carlone, "Graduated Non-Convexity for Robust Spatial Perception", 2020): the
+surrogate ``rho_mu`` is convex for small ``mu`` and becomes the TLS as ``mu`` grows; for fixed
+weights the problem is a weighted least squares, and the optimal weights for fixed residuals
+are, in closed form,
+
+    w = 1                                   if r^2 <= mu / (mu + 1) c^2
+    w = 0                                   if r^2 >= (mu + 1) / mu c^2
+    w = c sqrt(mu (mu + 1)) / |r| - mu      otherwise.
+
+``mu = inf`` gives the TLS's own weights (1 inside ``c``, 0 outside).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+def gnc_tls_weights(norms: FloatArray, threshold: float, mu: float) -> FloatArray:
+    """GNC weights of the truncated quadratic for residual norms ``norms`` (see the module).
+
+    Args:
+        norms: whitened residual norms (``inf`` for an observation that cannot be an inlier).
+        threshold: ``c``, the inlier threshold (same units as ``norms``).
+        mu: the continuation parameter, > 0; ``inf`` for the plain truncated quadratic.
+    """
+    norms = np.asarray(norms, dtype=float)
+    if math.isinf(mu):
+        return (norms <= threshold).astype(float)
+    r2, c2 = norms**2, threshold**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        middle = threshold * math.sqrt(mu * (mu + 1.0)) / norms - mu
+    w = np.where(r2 <= mu / (mu + 1.0) * c2, 1.0,
+                 np.where(r2 >= (mu + 1.0) / mu * c2, 0.0, middle))
+    return np.clip(np.nan_to_num(w, nan=0.0), 0.0, 1.0)
+
+
+def gnc_schedule(mu0: float = 1.0, factor: float = 4.0, steps: int = 3) -> list[float]:
+    """``mu0, mu0 factor, ..., mu0 factor^(steps-1), inf``: the continuation the estimators use.
+
+    The default starts with weights that fall from 1 to 0 between ``0.7 c`` and ``1.4 c``; a
+    start that is far off (so that true observations sit beyond the threshold) wants a smaller
+    ``mu0``.
+    """
+    return [mu0 * factor**i for i in range(steps)] + [math.inf]
