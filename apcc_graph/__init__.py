@@ -27,6 +27,7 @@ _EXPORTS = {
     "estimate": "apcc_graph.api",
     "Estimate": "apcc_graph.estimation.result",
     "FixedLagSmoother": "apcc_graph.estimation.smoother",
+    "ProjectionFixedLagSmoother": "apcc_graph.estimation.projection_smoother",
     "GraphOptions": "apcc_graph.estimation.options",
     "FrameObservations": "apcc_graph.sequence",
     "Sequence": "apcc_graph.sequence",

@@ -14,6 +14,7 @@ METHODS = ("chain", "batch", "smoother")
 
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
+             theta0_sigma: float | None = None, vision: str | None = None,
              **options: Any) -> Estimate:
     """Estimate every frame's segment angles.
 
@@ -22,6 +23,13 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         method: ``"chain"`` (the paper's front end), ``"batch"`` (factor graph, whole
             sequence) or ``"smoother"`` (fixed-lag smoother, frame by frame).
         theta0: ``(S,)`` starting configuration in radians (default straight).
+        theta0_sigma: standard deviation of the prior on ``theta0`` (radians; default
+            :class:`~apcc_graph.estimation.options.GraphOptions`' 0.1 deg); batch and
+            smoother only (the chain starts exactly at ``theta0``).
+        vision: ``"projection"`` or ``"epipolar"`` (batch and smoother only). Default: the
+            batch's projection model; the smoother's epipolar model (its projection version,
+            :class:`~apcc_graph.estimation.projection_smoother.ProjectionFixedLagSmoother`,
+            is experimental).
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
             :func:`~apcc_graph.estimation.batch.batch_estimate` or
             :func:`~apcc_graph.estimation.smoother.smoother_estimate`).
@@ -29,6 +37,21 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     Raises:
         ValueError: an unknown method.
     """
+    if method in ("batch", "smoother") and (theta0_sigma is not None or vision is not None):
+        from dataclasses import replace
+
+        from apcc_graph.estimation.options import GraphOptions
+
+        changes: dict[str, Any] = {}
+        if theta0_sigma is not None:
+            changes["theta0_sigma"] = float(theta0_sigma)
+        if vision is not None and method == "batch":
+            changes["vision"] = vision
+        if vision is not None and method == "smoother":
+            options["vision"] = vision
+        options["options"] = replace(options.get("options") or GraphOptions(), **changes)
+    elif method == "chain" and vision not in (None, "epipolar"):
+        raise ValueError(f"vision = {vision!r}: the chain is the epipolar 1-point front end")
     if method == "chain":
         from apcc_graph.estimation.chain import chain_estimate
 

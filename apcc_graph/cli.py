@@ -42,7 +42,7 @@ _EXAMPLES = {
     "bench images": "example:\n  apcc-graph bench images --frames 150 --seeds 1,2,3,4,5",
     "track": "example:\n  apcc-graph track my_recording --force",
     "bench smoother": "example:\n  apcc-graph bench smoother\n  apcc-graph bench smoother "
-    "--frames 120 --long-frames 450 --memory-frames 1200 --no-batch",
+    "--frames 120 --seeds 1,2 --long-frames 0 --memory-frames 0 --methods chain,smoother",
 }
 
 
@@ -290,6 +290,14 @@ def _run_estimate(args: argparse.Namespace) -> str:
         options["lag"] = args.lag
     elif args.lag is not None and args.lag != DEFAULT_LAG:
         raise UserError("--lag applies to --method smoother only")
+    if args.method != "chain":
+        if not (math.isfinite(args.theta0_sigma_deg) and args.theta0_sigma_deg > 0.0):
+            raise UserError(f"--theta0-sigma-deg {args.theta0_sigma_deg!r}: expected a "
+                            "positive number of degrees")
+        options["theta0_sigma"] = math.radians(args.theta0_sigma_deg)
+        options["vision"] = args.vision
+    elif args.vision is not None:
+        raise UserError("--vision applies to --method batch and smoother only")
     result = estimate(sequence, method=args.method, theta0=theta0, **options)
     written = save_estimate(result, args.out)
     lines = [f"{args.method}: {result.n_frames} frames, {sequence.n_segments} segments -> "
@@ -482,11 +490,21 @@ def _int_list(text: str, option: str) -> list[int]:
 
 
 def _run_bench_smoother(args: argparse.Namespace) -> str:
-    from apcc_graph.bench.smoother import format_smoother_benchmark, run_smoother_benchmark
+    from apcc_graph.bench.smoother import METHODS, format_smoother_benchmark, run_smoother_benchmark
 
-    result = run_smoother_benchmark(frames=args.frames, long_frames=args.long_frames,
-                                    memory_frames=args.memory_frames, seed=args.seed,
-                                    batch=not args.no_batch, progress=True)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise UserError(f"--methods {args.methods!r}: expected a comma-separated subset of "
+                        f"{', '.join(METHODS)}")
+    if args.long_frames and args.long_frames < 400:
+        raise UserError(f"--long-frames {args.long_frames}: expected 0 (skip) or at least 400")
+    if args.memory_frames and args.memory_frames < 1000:
+        raise UserError(f"--memory-frames {args.memory_frames}: expected 0 (skip) or at least "
+                        "1000")
+    result = run_smoother_benchmark(frames=args.frames, seeds=_int_list(args.seeds, "--seeds"),
+                                    methods=methods, long_frames=args.long_frames,
+                                    memory_frames=args.memory_frames, progress=True)
     return format_smoother_benchmark(result)
 
 
@@ -666,6 +684,13 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--theta0-deg", default=None,
                      help="starting configuration, degrees, one per segment (default straight);"
                      " write --theta0-deg=-10,5,3 when the first angle is negative")
+    est.add_argument("--theta0-sigma-deg", type=float, default=0.1,
+                     help="how well the starting configuration is known: standard deviation "
+                     "of its prior, degrees (default: %(default)s)")
+    est.add_argument("--vision", choices=("projection", "epipolar"), default=None,
+                     help="vision model: projection (every observation once, each track's "
+                     "point eliminated; the batch's default) or epipolar (frame pairs; the "
+                     "smoother's default, its projection version is experimental)")
     est.set_defaults(run=_run_estimate)
 
     ev = sub.add_parser(
@@ -783,20 +808,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     smb = bench_sub.add_parser(
         "smoother",
-        help="the back end against the chain: accuracy, drift, speed, memory, self-calibration",
+        help="the back end against the Cramer-Rao bound: accuracy, drift, speed, memory",
         description="Simulate 3-segment room-scene sequences (1 px noise, 10%% and 30%% "
         "outliers, ~150 tracks per camera, 30 fps) and measure the chain, the fixed-lag "
-        "smoother and the batch, in one run.",
+        "smoother, the batch and the projection smoother beside the Cramer-Rao bound of the "
+        "same sequences, in one run.",
         epilog=_EXAMPLES["bench smoother"], formatter_class=fmt,
     )
     smb.add_argument("--frames", type=_at_least(30), default=600,
-                     help="frames of the accuracy and self-calibration runs")
-    smb.add_argument("--long-frames", type=_at_least(400), default=3000,
-                     help="frames of the drift and speed run")
-    smb.add_argument("--memory-frames", type=_at_least(1000), default=10_000,
-                     help="frames of the memory run")
-    smb.add_argument("--seed", type=int, default=1)
-    smb.add_argument("--no-batch", action="store_true", help="leave the batch out (slow)")
+                     help="frames of each accuracy run")
+    smb.add_argument("--seeds", default="1,2,3,4,5", help="simulation seeds, comma-separated")
+    smb.add_argument("--methods", default="chain,smoother,batch,projection smoother",
+                     help="estimators, comma-separated (default: %(default)s)")
+    smb.add_argument("--long-frames", type=int, default=3000,
+                     help="frames of the drift and speed run (0 to skip)")
+    smb.add_argument("--memory-frames", type=int, default=10_000,
+                     help="frames of the memory run (0 to skip)")
     smb.set_defaults(run=_run_bench_smoother)
 
     trb = bench_sub.add_parser(

@@ -83,14 +83,15 @@ class CameraChain:
 
     segments: tuple[Segment, ...]  # segments 0..c
     tip_T_cam: FloatArray
-    world_T_base: FloatArray | None  # (F, 4, 4) over the whole sequence, or None
-    psis: FloatArray | None  # (F, S) bending-plane angles, or None
+    world_T_base: FloatArray | None  # (F, 4, 4) base poses of frames frame0.., or None
+    psis: FloatArray | None  # (F, S) bending-plane angles of frames frame0.., or None
+    frame0: int = 0  # the frame of world_T_base[0] and psis[0]
 
     def poses(self, thetas: FloatArray, first: int,
               derivatives: bool) -> tuple[FloatArray, FloatArray | None]:
         """Poses (and derivatives) of frames ``first .. first + len(thetas) - 1``."""
         n = len(self.segments)
-        rows = slice(first, first + len(thetas))
+        rows = slice(first - self.frame0, first - self.frame0 + len(thetas))
         base = None if self.world_T_base is None else self.world_T_base[rows]
         psis = None if self.psis is None else self.psis[rows, :n]
         return camera_poses(thetas[:, :n], self.segments, self.tip_T_cam, base, psis,
@@ -259,6 +260,7 @@ class ProjectionFactor:
         self.frames = np.arange(self.first, self.last + 1)
         self.keys = [frame_key(int(f)) for f in self.frames]
         self.points: FloatArray | None = None
+        self.norms: FloatArray | None = None  # residual norms of the last evaluation
         self.n = len(chain.segments)
         self.dim = len(self.frames) * self.n + 1
 
@@ -270,7 +272,7 @@ class ProjectionFactor:
         """The reduced system at ``thetas`` (and remember the points)."""
         out = reduced_system(self.obs, self.chain, thetas, self.first, self.weights,
                              self.points, jacobians)
-        self.points = out.points
+        self.points, self.norms = out.points, out.residuals
         return out
 
     def residual_norms(self, thetas: FloatArray, robust: bool = False) -> FloatArray:

@@ -327,7 +327,7 @@ def triangulate(
     weights: FloatArray,
     points: FloatArray | None = None,
     iterations: int = 10,
-    tolerance: float = 1e-9,
+    tolerance: float = 1e-7,
 ) -> FloatArray:
     """Each track's point: weighted least squares of its whitened reprojection errors.
 
@@ -351,7 +351,7 @@ def triangulate(
 
 def triangulate_rows(obs: TrackObservations, Rb: FloatArray, ob: FloatArray, weights: FloatArray,
                  points: FloatArray | None, iterations: int = 10,
-                 tolerance: float = 1e-9) -> FloatArray:
+                 tolerance: float = 1e-7) -> FloatArray:
     """:func:`triangulate`, row-last: ``Rb`` ``(3, 3, N)``, ``ob`` ``(3, N)``, points
     ``(3, T)`` in and out."""
     starts, tracks = obs.starts, obs.tracks

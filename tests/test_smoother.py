@@ -78,7 +78,7 @@ def rms(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 def short_run(robot: Robot):
     """25 frames (0.83 s), shorter than the 2 s lag: the smoother's window is the batch graph."""
     seq = simulate_sequence(robot, 25, noise_px=0.5, seed=1)
-    options = GraphOptions(min_baseline=0.0)
+    options = GraphOptions(vision="epipolar", min_baseline=0.0)
     batch = batch_estimate(seq, theta0=seq.thetas[0], options=options, init="chain",
                            marginals=False)
     return seq, options, batch
@@ -108,7 +108,8 @@ def test_smoother_equals_batch_when_the_sequence_fits_in_the_window(
 def test_smoother_with_min_baseline_zero_survives_a_zero_baseline_prediction(
         robot: Robot) -> None:
     seq = simulate_sequence(robot, 25, noise_px=0.5, seed=2)
-    filtered, final, smoother = run(seq, lag=2.0, options=GraphOptions(min_baseline=0.0),
+    filtered, final, smoother = run(seq, lag=2.0,
+                                    options=GraphOptions(vision="epipolar", min_baseline=0.0),
                                     uncertainty=False)
     # Measured: 24 recoveries (every frame), RMS error 8.4, 2.0, 11.0 deg.
     assert smoother.recoveries == 0
@@ -125,7 +126,7 @@ def test_noise_free_sequence_recovers_the_truth(robot: Robot, linearization: str
     linearised once at the 1-point prediction keep an error of second order in that
     prediction's error."""
     seq = simulate_sequence(robot, 25, noise_px=0.0, seed=1)
-    options = GraphOptions(motion_sigma=None, theta0_sigma=1e-6)
+    options = GraphOptions(vision="epipolar", motion_sigma=None, theta0_sigma=1e-6)
     smoother = FixedLagSmoother(robot, lag=2.0, options=options, theta0=seq.thetas[0],
                                 linearization=linearization, uncertainty=False)
     for f in range(seq.n_frames):
@@ -305,7 +306,7 @@ def seq30(robot: Robot) -> Sequence:
     return simulate_sequence(robot, 30, noise_px=0.5, seed=1)
 
 
-NO_MOTION_PRIOR = GraphOptions(motion_sigma=None)
+NO_MOTION_PRIOR = GraphOptions(vision="epipolar", motion_sigma=None)
 
 
 def test_unconstrained_frame_is_anchored_by_default(seq30: Sequence) -> None:

@@ -157,7 +157,7 @@ def batch_estimate(
     max_iterations: int = 30,
     marginals: bool = True,
     progress: bool = False,
-    init: str = "smoother",
+    init: str = "chain",
     schedule: SequenceOf[float] | None = None,
 ) -> Estimate:
     """Optimise all frames and segments jointly.
@@ -172,8 +172,10 @@ def batch_estimate(
         marginals: compute marginal standard deviations (otherwise NaN).
         progress: show progress bars.
         init: where the initial angles come from when ``initial`` is not given:
-            ``"smoother"`` (the fixed-lag smoother) or ``"chain"`` (the paper's chained
-            1-point estimate).
+            ``"chain"`` (default: the paper's chained 1-point estimate, a few seconds for 600
+            frames; it drifts by degrees, and the graduated non-convexity of the outlier
+            decisions brings the batch back from there) or ``"smoother"`` (the fixed-lag
+            smoother: closer, slower).
         schedule: the GNC continuation of the outlier decisions (projection model).
 
     Returns:

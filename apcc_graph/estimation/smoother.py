@@ -1,6 +1,10 @@
 """Streaming estimation: a fixed-lag smoother over the last ``lag`` seconds of frames (gtsam).
 
-The graph is the batch's (:mod:`apcc_graph.estimation.batch`), grown one frame at a time:
+This is the epipolar smoother, still the default: it grows the epipolar graph
+(:mod:`apcc_graph.estimation.epipolar_graph`) one frame at a time. The smoother on the projection
+model (:mod:`apcc_graph.estimation.projection_smoother`, ``vision="projection"``) is
+experimental: ``docs/estimation.md`` says where each stands against the Cramer-Rao bound.
+Graph:
 
 - variables ``theta[f, i]`` (Vector1, radians), key ``f * S + i`` (as the batch);
 - a prior on the first frame (``theta0``), a random-walk motion prior between consecutive frames,
@@ -930,6 +934,7 @@ def smoother_estimate(
     lag: float = 1.0,
     options: GraphOptions | None = None,
     progress: bool = False,
+    vision: str = "epipolar",
     **smoother_options: Any,
 ) -> Estimate:
     """Run :class:`FixedLagSmoother` over a recorded sequence, frame by frame.
@@ -943,12 +948,21 @@ def smoother_estimate(
         lag: window length in seconds.
         options: graph construction (:class:`~apcc_graph.estimation.batch.GraphOptions`).
         progress: show a progress bar.
-        **smoother_options: further :class:`FixedLagSmoother` arguments.
+        vision: ``"epipolar"`` (default, this module) or ``"projection"`` (the experimental
+            :class:`~apcc_graph.estimation.projection_smoother.ProjectionFixedLagSmoother`).
+        **smoother_options: further smoother arguments.
 
     Returns:
         The estimate, ``method = "smoother"``; ``inliers`` is 0 (the factors weigh each
         correspondence instead of classifying it).
     """
+    if vision == "projection":
+        from apcc_graph.estimation.projection_smoother import projection_smoother_estimate
+
+        return projection_smoother_estimate(sequence, theta0=theta0, lag=lag, options=options,
+                                            progress=progress, **smoother_options)
+    if vision != "epipolar":
+        raise ValueError(f"vision = {vision!r}: expected 'epipolar' or 'projection'")
     smoother = FixedLagSmoother(sequence.robot, lag=lag, options=options, theta0=theta0,
                                 **smoother_options)
     for f in tqdm(range(sequence.n_frames), desc="smoother", disable=not progress):

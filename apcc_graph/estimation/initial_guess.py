@@ -1,0 +1,175 @@
+"""A new frame's initial angles, for a streaming estimator.
+
+The prediction (constant angular velocity from the two previous estimates) is refined against
+the tracks the window already knows: each live track's point (triangulated from its earlier
+observations) is held fixed and the new frame's S angles are fitted to the new observations of
+those tracks, all cameras together, by robust Gauss-Newton (Cauchy weights, then the truncated
+quadratic): a perspective-n-point problem in joint space. Observations are whitened reprojection
+errors (:mod:`factors.track_points`); Jacobians come from the scalar APCC transforms
+(:func:`apcc_graph.kinematics.apcc_transform_scalar`), one frame at a time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.kinematics import apcc_transform_scalar
+from apcc_graph.robot import Robot
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FrameRows:
+    """One camera's observations in the new frame of tracks with known points."""
+
+    camera: int
+    points: FloatArray  # (n, 3) world points
+    xy: FloatArray  # (n, 2) normalised image coordinates
+    whiten: FloatArray  # (n, 2, 2)
+
+
+@dataclass(frozen=True)
+class InitialGuess:
+    """The new frame's angles and what backed them.
+
+    Attributes:
+        thetas: ``(S,)`` angles (radians).
+        inliers: ``(S,)`` per camera segment, observations within the threshold (0 where the
+            segment has no camera or no known points).
+        refined: whether the observations refined the prediction.
+        row_inliers: per entry of the ``rows`` given, which observations are inliers at the
+            returned angles.
+    """
+
+    thetas: FloatArray
+    inliers: NDArray[np.int64]
+    refined: bool
+    row_inliers: tuple[NDArray[np.bool_], ...] = ()
+
+
+def predict(previous: FloatArray, older: FloatArray | None, robot: Robot) -> FloatArray:
+    """Constant angular velocity from the two previous frames' estimates, within the limits."""
+    prediction = previous if older is None else 2.0 * previous - older
+    lim = np.array([s.theta_max for s in robot.segments])
+    return np.clip(prediction, -lim, lim)
+
+
+def frame_poses(thetas: FloatArray, robot: Robot, world_T_base: FloatArray | None,
+                psis: FloatArray | None = None) -> tuple[list[FloatArray], list[FloatArray]]:
+    """Per segment i, ``world_T_tip_i`` and its derivatives ``(i + 1, 4, 4)`` with respect to
+    ``thetas[0..i]``, for one frame."""
+    S = robot.n_segments
+    psis = np.zeros(S) if psis is None else psis
+    T, dT = zip(*(apcc_transform_scalar(float(thetas[j]), s, float(psis[j]))
+                  for j, s in enumerate(robot.segments)), strict=True)
+    base = np.eye(4) if world_T_base is None else np.asarray(world_T_base, dtype=float)
+    tips, derivs = [], []
+    prefix = [base]
+    for i in range(S):
+        prefix.append(prefix[-1] @ T[i])
+        tip = prefix[-1]
+        d = np.empty((i + 1, 4, 4))
+        for j in range(i + 1):
+            suffix = np.eye(4)
+            for m in range(j + 1, i + 1):
+                suffix = suffix @ T[m]
+            d[j] = prefix[j] @ dT[j] @ suffix
+        tips.append(tip)
+        derivs.append(d)
+    return tips, derivs
+
+
+def _normal_equations(thetas: FloatArray, robot: Robot, base: FloatArray | None,
+                      psis: FloatArray | None, rows: list[FrameRows], scale: float | None,
+                      threshold: float
+                      ) -> tuple[FloatArray, FloatArray, float, list[NDArray[np.bool_]]]:
+    S = robot.n_segments
+    tips, derivs = frame_poses(thetas, robot, base, psis)
+    H, g, cost = np.zeros((S, S)), np.zeros(S), 0.0
+    inliers: list[NDArray[np.bool_]] = []
+    for r in rows:
+        c = r.camera
+        camera = robot.cameras[c]
+        assert camera is not None
+        pose = tips[c] @ camera.tip_T_cam
+        dpose = derivs[c] @ camera.tip_T_cam
+        R, o = pose[:3, :3], pose[:3, 3]
+        d = r.points - o
+        q = d @ R
+        iz = 1.0 / np.maximum(q[:, 2], 1e-3)
+        m = q[:, :2] * iz[:, None]
+        res = np.einsum("nij,nj->ni", r.whiten, m - r.xy)
+        norm = np.sqrt(np.sum(res * res, axis=1))
+        valid = q[:, 2] > 1e-3
+        if scale is None:
+            w = (norm <= threshold) & valid
+        else:
+            w = valid / (1.0 + (norm / scale) ** 2)
+        inliers.append((norm <= threshold) & valid)
+        # dq/dtheta_j = dR_j^T d - R^T do_j; dm/dq; J = W dm/dq dq/dtheta.
+        dq = np.einsum("jba,nb->nja", dpose[:, :3, :3], d) - (dpose[:, :3, 3] @ R)[None]
+        dm = np.zeros((len(q), 2, 3))
+        dm[:, 0, 0] = dm[:, 1, 1] = iz
+        dm[:, :, 2] = -m * iz[:, None]
+        J = np.einsum("nab,nbc,njc->naj", r.whiten, dm, dq)  # (n, 2, c + 1)
+        sw = np.sqrt(w)[:, None, None]
+        Jw, rw = J * sw, res * sw[:, :, 0]
+        H[:c + 1, :c + 1] += np.einsum("naj,nak->jk", Jw, Jw)
+        g[:c + 1] += np.einsum("naj,na->j", Jw, rw)
+        cost += float(np.sum(rw * rw))
+    return H, g, cost, inliers
+
+
+def refine(prediction: FloatArray, robot: Robot, world_T_base: FloatArray | None,
+           rows: list[FrameRows], threshold: float, psis: FloatArray | None = None,
+           min_rows: int = 6, iterations: int = 6) -> InitialGuess:
+    """Refine the prediction against fixed points (see the module docstring).
+
+    Args:
+        prediction: ``(S,)`` predicted angles (radians).
+        robot: the robot.
+        world_T_base: the frame's base pose (``None``: identity).
+        rows: per camera, observations of tracks with known points.
+        threshold: inlier threshold on whitened residual norms (pixel-noise units).
+        psis: the frame's bending-plane angles, or ``None``.
+        min_rows: segments constrained by fewer inliers keep the prediction's angle.
+        iterations: Gauss-Newton iterations (the first half Cauchy-weighted).
+
+    Returns:
+        The initial guess; ``refined`` is False (and the angles are the prediction) when no
+        segment had ``min_rows`` observations.
+    """
+    S = robot.n_segments
+    counts = np.zeros(S, dtype=np.int64)
+    for r in rows:
+        counts[r.camera] = len(r.points)
+    # A segment is refined if a camera on it or further out sees enough.
+    reach = np.array([counts[i:].sum() for i in range(S)])
+    free = reach >= min_rows
+    if not free.any():
+        return InitialGuess(prediction.copy(), np.zeros(S, dtype=np.int64), False,
+                            tuple(np.ones(len(r.points), dtype=bool) for r in rows))
+    thetas = prediction.copy()
+    lim = np.array([s.theta_max for s in robot.segments])
+    for it in range(iterations):
+        scale = 3.0 * threshold if it < iterations // 2 else None
+        H, g, _, _ = _normal_equations(thetas, robot, world_T_base, psis, rows, scale,
+                                       threshold)
+        Hf = H[np.ix_(free, free)] + 1e-9 * max(float(np.trace(H)), 1e-12) * np.eye(free.sum())
+        step = np.zeros(S)
+        try:
+            step[free] = -np.linalg.solve(Hf, g[free])
+        except np.linalg.LinAlgError:
+            break
+        thetas = np.clip(thetas + step, -lim, lim)
+        if np.max(np.abs(step)) < 1e-7:
+            break
+    *_, inliers = _normal_equations(thetas, robot, world_T_base, psis, rows, None, threshold)
+    out = np.zeros(S, dtype=np.int64)
+    for r, flags in zip(rows, inliers, strict=True):
+        out[r.camera] = int(flags.sum())
+    return InitialGuess(thetas, out, True, tuple(inliers))

@@ -1,0 +1,189 @@
+"""The tracks a streaming estimator is still watching, until each one is committed once.
+
+Every observation enters the smoother's graph exactly once, inside the projection factor of its
+track (:mod:`factors.projection`). A track is therefore held here while it is being observed
+and committed, all its observations at once, when one of these happens:
+
+- it ends: the camera no longer sees it in the new frame;
+- its first frame is about to leave the smoother's window (a piece of a track that outlives the
+  window: the rest of the track starts a new piece with its own point);
+- it reached ``max_frames`` frames.
+
+Pieces of fewer than ``min_rows`` observations are dropped when committed (one observation of an
+unknown point carries no information). Observations are kept per frame and dropped with their
+frame when it leaves the window, by then always committed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.track_points import TrackObservations
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass
+class _FrameRows:
+    """One frame's observations of one camera."""
+
+    frame: int
+    pieces: IntArray  # piece id per row
+    ids: IntArray  # track id per row
+    xy: FloatArray  # (n, 2) normalised coordinates
+    whiten: FloatArray  # (n, 2, 2)
+    weights: FloatArray  # (n,) robust decisions (1 inlier, 0 outlier)
+
+
+@dataclass
+class _Camera:
+    rows: list[_FrameRows] = field(default_factory=list)
+    piece_of: dict[int, int] = field(default_factory=dict)  # track id -> its live piece
+    first: dict[int, int] = field(default_factory=dict)  # live piece -> first frame
+    last: dict[int, int] = field(default_factory=dict)  # live piece -> last frame seen
+    points: dict[int, FloatArray] = field(default_factory=dict)  # piece -> world point
+
+
+class LiveTracks:
+    """Live track pieces of every camera (see the module docstring).
+
+    Args:
+        cameras: the cameras (segment indices).
+        max_frames: longest piece, in frames.
+        min_rows: shortest piece worth committing.
+    """
+
+    def __init__(self, cameras: tuple[int, ...], max_frames: int, min_rows: int = 2) -> None:
+        self._cams = {c: _Camera() for c in cameras}
+        self.max_frames = int(max_frames)
+        self.min_rows = int(min_rows)
+        self._next_piece = 0
+
+    def add(self, frame: int, cam: int, ids: IntArray, xy: FloatArray, whiten: FloatArray,
+            weights: FloatArray | None = None) -> None:
+        """Record camera ``cam``'s observations of frame ``frame`` (after :meth:`take_due`),
+        with their first robust decisions (default: all inliers)."""
+        state = self._cams[cam]
+        pieces = np.empty(len(ids), dtype=np.int64)
+        for k, tid in enumerate(ids.tolist()):
+            piece = state.piece_of.get(tid)
+            if piece is None:
+                piece = self._next_piece
+                self._next_piece += 1
+                state.piece_of[tid] = piece
+                state.first[piece] = frame
+            state.last[piece] = frame
+            pieces[k] = piece
+        w = np.ones(len(ids)) if weights is None else np.asarray(weights, dtype=float)
+        state.rows.append(_FrameRows(frame, pieces, ids, xy, whiten, w))
+
+    def take_due(self, frame: int, seen: dict[int, IntArray],
+                 leaving_before: int) -> dict[int, TrackObservations]:
+        """Commit the pieces that are due before frame ``frame``'s observations are added.
+
+        Args:
+            frame: the new frame.
+            seen: camera -> track ids seen in the new frame.
+            leaving_before: frames before this one leave the window in this update.
+
+        Returns:
+            camera -> the committed observations (pieces with at least ``min_rows`` rows;
+            track ids are piece ids), for cameras that have any.
+        """
+        out: dict[int, TrackObservations] = {}
+        for cam, state in self._cams.items():
+            now = set(seen.get(cam, np.zeros(0, np.int64)).tolist())
+            due = set()
+            for tid, piece in list(state.piece_of.items()):
+                length = frame - state.first[piece]
+                if (tid not in now or state.first[piece] < leaving_before
+                        or length >= self.max_frames):
+                    due.add(piece)
+                    del state.piece_of[tid]
+            if not due:
+                continue
+            obs = self._collect(state, due)
+            for piece in due:
+                state.first.pop(piece)
+                state.last.pop(piece)
+                state.points.pop(piece, None)
+            if obs is not None:
+                out[cam] = obs
+        return out
+
+    def take_all(self) -> dict[int, TrackObservations]:
+        """Commit every live piece (end of a stream)."""
+        out: dict[int, TrackObservations] = {}
+        for cam, state in self._cams.items():
+            due = set(state.first)
+            state.piece_of.clear()
+            obs = self._collect(state, due) if due else None
+            for piece in due:
+                state.first.pop(piece)
+                state.last.pop(piece)
+                state.points.pop(piece, None)
+            if obs is not None:
+                out[cam] = obs
+        return out
+
+    def _collect(self, state: _Camera, due: set[int]) -> TrackObservations | None:
+        found = self._gather(state, due)
+        return None if found is None else found[0]
+
+    def _gather(self, state: _Camera, due: set[int]
+                ) -> tuple[TrackObservations, FloatArray, IntArray] | None:
+        """The rows of pieces ``due`` with at least ``min_rows`` rows: observations (ids are
+        piece ids), their weights, and each row's position in the concatenated buffer."""
+        if not state.rows or not due:
+            return None
+        pieces = np.concatenate([r.pieces for r in state.rows])
+        keep = np.isin(pieces, np.fromiter(due, dtype=np.int64, count=len(due)))
+        _, inverse, counts = np.unique(pieces[keep], return_inverse=True, return_counts=True)
+        keep[keep] = counts[inverse] >= self.min_rows
+        if not keep.any():
+            return None
+        index = np.flatnonzero(keep)
+        frames = np.concatenate([np.full(len(r.pieces), r.frame) for r in state.rows])[index]
+        order = np.lexsort((frames, pieces[index]))
+        index = index[order]
+        xy = np.concatenate([r.xy for r in state.rows])[index]
+        whiten = np.concatenate([r.whiten for r in state.rows])[index]
+        weights = np.concatenate([r.weights for r in state.rows])[index]
+        cam = next(c for c, s in self._cams.items() if s is state)
+        obs = TrackObservations.build(cam, frames[order], pieces[index], xy, whiten)
+        return obs, weights, index
+
+    def live_rows(self, cam: int) -> tuple[TrackObservations, FloatArray, IntArray] | None:
+        """Camera ``cam``'s live pieces with at least ``min_rows`` rows: observations (ids are
+        piece ids), weights, and row positions for :meth:`set_weights`."""
+        state = self._cams[cam]
+        return self._gather(state, set(state.first))
+
+    def set_weights(self, cam: int, index: IntArray, weights: FloatArray) -> None:
+        """Store robust decisions for rows at buffer positions ``index`` (from
+        :meth:`live_rows`, before any other change)."""
+        state = self._cams[cam]
+        sizes = np.array([len(r.pieces) for r in state.rows])
+        starts = np.concatenate([[0], np.cumsum(sizes)])
+        chunk = np.searchsorted(starts, index, side="right") - 1
+        for c in np.unique(chunk):
+            sel = chunk == c
+            state.rows[c].weights[index[sel] - starts[c]] = weights[sel]
+
+    def drop_frames_before(self, frame: int) -> None:
+        """Forget observations of frames before ``frame`` (they have left the window)."""
+        for state in self._cams.values():
+            state.rows = [r for r in state.rows if r.frame >= frame]
+
+    def points(self, cam: int) -> dict[int, FloatArray]:
+        """Cached world points of live pieces (piece id -> ``(3,)``)."""
+        return self._cams[cam].points
+
+    def piece_ids(self, cam: int, track_ids: IntArray) -> IntArray:
+        """Live piece of each track id (-1 where the track has none)."""
+        state = self._cams[cam]
+        return np.array([state.piece_of.get(t, -1) for t in track_ids.tolist()], dtype=np.int64)
