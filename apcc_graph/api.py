@@ -15,7 +15,7 @@ METHODS = ("chain", "batch", "smoother")
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
              theta0_sigma: float | None = None, vision: str | None = None,
-             **options: Any) -> Estimate:
+             threshold_px: float | None = None, **options: Any) -> Estimate:
     """Estimate every frame's segment angles.
 
     Args:
@@ -30,6 +30,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             batch's projection model; the smoother's epipolar model (its projection version,
             :class:`~apcc_graph.estimation.projection_smoother.ProjectionFixedLagSmoother`,
             is experimental).
+        threshold_px: the tracks' pixel noise (pixels, default 1); batch and smoother only.
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
             :func:`~apcc_graph.estimation.batch.batch_estimate` or
             :func:`~apcc_graph.estimation.smoother.smoother_estimate`).
@@ -37,7 +38,8 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     Raises:
         ValueError: an unknown method.
     """
-    if method in ("batch", "smoother") and (theta0_sigma is not None or vision is not None):
+    if method in ("batch", "smoother") and (theta0_sigma is not None or vision is not None
+                                            or threshold_px is not None):
         from dataclasses import replace
 
         from apcc_graph.estimation.options import GraphOptions
@@ -45,6 +47,8 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         changes: dict[str, Any] = {}
         if theta0_sigma is not None:
             changes["theta0_sigma"] = float(theta0_sigma)
+        if threshold_px is not None:
+            changes["threshold_px"] = float(threshold_px)
         if vision is not None and method == "batch":
             changes["vision"] = vision
         if vision is not None and method == "smoother":

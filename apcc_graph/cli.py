@@ -224,7 +224,31 @@ def _run_simulate(args: argparse.Namespace) -> str:
         lines.append(f"  cam_{cam + 1}: {len(seq.tracks[cam])} observations, "
                      f"{per_frame.mean():.0f} tracks per frame (min {per_frame.min()}), "
                      f"{int(sim.outliers[cam].sum())} outliers")
+    lines.append(_bound_line(sim, args.noise_px))
     return "\n".join(lines)
+
+
+BOUND_LIMIT = 6000
+"""Most angles (frames x segments) for which ``simulate`` prints the Cramer-Rao bound: its
+information matrix is dense."""
+
+
+def _bound_line(sim: object, noise_px: float) -> str:
+    """The Cramer-Rao bound of a simulation's angles, as ``simulate`` prints it."""
+    from apcc_graph.sequence_bound import sequence_bound
+    from apcc_graph.simulate import Simulation
+
+    assert isinstance(sim, Simulation)
+    seq = sim.sequence
+    if noise_px <= 0.0:
+        return "Cramer-Rao bound: none (noise-free pixels)"
+    if seq.n_frames * seq.n_segments > BOUND_LIMIT:
+        return (f"Cramer-Rao bound: not computed ({seq.n_frames} frames x {seq.n_segments} "
+                f"segments > {BOUND_LIMIT} angles)")
+    bound = sequence_bound(sim, noise_px, math.radians(0.1))
+    return ("Cramer-Rao bound of the angles (every observation once, each track's point "
+            "unknown, 0.1 deg start prior), RMS per segment: "
+            + ", ".join(f"{v:.3f}" for v in np.degrees(bound.rms())) + " deg")
 
 
 def _simulate_images(args: argparse.Namespace, sim: object, out: Path) -> str:
@@ -294,8 +318,12 @@ def _run_estimate(args: argparse.Namespace) -> str:
         if not (math.isfinite(args.theta0_sigma_deg) and args.theta0_sigma_deg > 0.0):
             raise UserError(f"--theta0-sigma-deg {args.theta0_sigma_deg!r}: expected a "
                             "positive number of degrees")
+        if not (math.isfinite(args.noise_px) and args.noise_px > 0.0):
+            raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of "
+                            "pixels")
         options["theta0_sigma"] = math.radians(args.theta0_sigma_deg)
         options["vision"] = args.vision
+        options["threshold_px"] = args.noise_px
     elif args.vision is not None:
         raise UserError("--vision applies to --method batch and smoother only")
     result = estimate(sequence, method=args.method, theta0=theta0, **options)
@@ -687,6 +715,9 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--theta0-sigma-deg", type=float, default=0.1,
                      help="how well the starting configuration is known: standard deviation "
                      "of its prior, degrees (default: %(default)s)")
+    est.add_argument("--noise-px", type=float, default=1.0,
+                     help="pixel noise of the tracks, standard deviation per coordinate "
+                     "(default: %(default)s); sets the outlier threshold and the sigmas")
     est.add_argument("--vision", choices=("projection", "epipolar"), default=None,
                      help="vision model: projection (every observation once, each track's "
                      "point eliminated; the batch's default) or epipolar (frame pairs; the "

@@ -18,6 +18,7 @@ import pytest
 from apcc_graph.estimation import batch as batch_module
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate, projection_solve
 from apcc_graph.estimation.chain import chain_estimate
+from apcc_graph.estimation.graph import CameraTerms
 from apcc_graph.estimation.robust import gnc_schedule
 from apcc_graph.robot import Robot, load_robot
 from apcc_graph.sequence import Sequence, Tracks
@@ -169,7 +170,8 @@ def test_outlier_decisions_match_the_simulated_outliers(
     options = GraphOptions()
     built = []
 
-    def build_terms(*args, **kwargs):  # the batch's own terms, with their final weights
+    def build_terms(*args: object, **kwargs: object) -> list[CameraTerms]:
+        # the batch's own terms, with their final weights
         terms = original(*args, **kwargs)
         built.append(terms)
         return terms

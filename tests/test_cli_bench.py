@@ -30,36 +30,30 @@ def test_bench_accuracy_small_run(capsys) -> None:
 
 
 def test_bench_smoother_small_run(capsys) -> None:
-    assert main(["bench", "smoother", "--frames", "40", "--long-frames", "400",
-                 "--memory-frames", "1000", "--no-batch"]) == 0
-    text = capsys.readouterr().out
-    lines = text.splitlines()
-    # Accuracy: chain and smoother rows for both outlier levels; the chain is the reference.
-    rows = {(ln.split()[0] + ln.split()[1], ln.split()[2]): ln.split()
-            for ln in lines if re.match(r"\s+(10|30)% outliers\s+(chain|smoother)\s", ln)}
-    assert set(rows) == {("10%outliers", "chain"), ("10%outliers", "smoother"),
-                         ("30%outliers", "chain"), ("30%outliers", "smoother")}
-    for (case, _method), cells in rows.items():
-        rms = [float(v) for v in cells[3:6]]
-        ratio = [float(v) for v in cells[7:10]]
-        chain = [float(v) for v in rows[(case, "chain")][3:6]]
-        assert all(v > 0 for v in rms)
-        # The ratio column is this method's RMS over the chain's (printed values rounded).
-        for r, c, q in zip(rms, chain, ratio, strict=True):
-            assert abs(r / c - q) < 0.01 + 0.0006 * r / c**2
-    # Drift rows: late / early is the ratio of the two printed windows.
-    for method in ("smoother", "chain"):
-        cells = next(ln.split() for ln in lines if ln.strip().startswith(method + " ")
-                     and "outliers" not in ln and len(ln.split()) == 4)
-        early, late, ratio = (float(v) for v in cells[1:])
-        assert abs(late / early - ratio) < 0.011
-    # Speed of both gtsam backends, and the memory and self-calibration sections.
-    assert re.search(r"incremental \(iSAM2\)\s+400\s+[\d.]+ms\s+[\d.]+ms", text)
-    assert re.search(r"batch \(LM over the window\)\s+150\s+[\d.]+ms", text)
-    assert re.search(r"after 1,000 frames\s+[\d.]+ MB; after 1,000 frames\s+[\d.]+ MB; "
-                     r"ratio 1\.\d{3}", text)
-    assert text.count("segment ") >= 3 and "self-calibration" in text
-    assert re.search(r"segment 1: k 0\.\d{4} \(true 0\.2500\)", text)
+    assert main(["bench", "smoother", "--frames", "40", "--seeds", "3", "--methods",
+                 "chain,batch", "--long-frames", "0", "--memory-frames", "0"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rows = {}
+    for ln in lines:
+        m = re.match(r"\s+(\d+)% outliers\s+3\s+(chain|batch)\s+(.*)", ln)
+        if m:
+            rows[m.group(1), m.group(2)] = [float(v) for v in m.group(3).split()]
+    assert set(rows) == {("10", "chain"), ("10", "batch"), ("30", "chain"), ("30", "batch")}
+    for cells in rows.values():
+        rms, bound, ratio = cells[0:3], cells[3:6], cells[6:9]
+        assert all(v > 0 for v in rms + bound)
+        # The ratio column is the RMS over the bound of the same sequence (rounded values).
+        for r, b, q in zip(rms, bound, ratio, strict=True):
+            assert abs(r / b - q) < 0.006 + 0.0006 * r / b**2
+    for rate in ("10", "30"):
+        # The bound is the same for every method of a sequence; the batch beats the chain.
+        assert rows[rate, "chain"][3:6] == rows[rate, "batch"][3:6]
+        assert sum(rows[rate, "batch"][:3]) < sum(rows[rate, "chain"][:3])
+    summary = [ln for ln in lines if re.match(r"\s+\d+% outliers\s+batch\s+[\d.]", ln)]
+    assert len(summary) == 2 and all(len(ln.split()) == 2 + 1 + 12 for ln in summary)
+    assert any("30% outliers / 10% outliers" in ln for ln in lines)
+    assert main(["bench", "smoother", "--methods", "chain,kalman"]) == 1
+    assert main(["bench", "smoother", "--long-frames", "100"]) == 1
 
 
 def test_bench_tracking_small_run(capsys) -> None:

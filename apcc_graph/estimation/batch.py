@@ -38,7 +38,7 @@ from apcc_graph.estimation.graph import (
 )
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.estimation.robust import gnc_schedule
+from apcc_graph.estimation.robust import gnc_start
 from apcc_graph.sequence import Sequence
 
 FloatArray = NDArray[np.float64]
@@ -108,15 +108,18 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         initial: ``(F, S)`` initial angles (radians).
         theta0: ``(S,)`` start prior's mean.
         options: graph options.
-        schedule: the GNC continuation (:func:`gnc_schedule`); it must end with ``inf``.
+        schedule: the GNC continuation (values of ``mu`` ending with ``inf``); default
+            :func:`~apcc_graph.estimation.robust.gnc_start`, fitted to the residuals at
+            ``initial``.
         max_iterations: Levenberg-Marquardt iterations per stage.
         max_final_rounds: most repetitions of the last stage while decisions change.
         marginals: compute marginal sigmas (otherwise NaN).
         progress: show a progress bar over the stages.
     """
-    schedule = list(gnc_schedule() if schedule is None else schedule)
-    if not schedule or not math.isinf(schedule[-1]):
-        raise ValueError(f"schedule = {schedule!r}: expected values ending with inf")
+    if schedule is not None:
+        schedule = list(schedule)
+        if not schedule or not math.isinf(schedule[-1]):
+            raise ValueError(f"schedule = {schedule!r}: expected values ending with inf")
     frames = range(sequence.n_frames)
     terms = build_terms(sequence, options)
     graph = gtsam.NonlinearFactorGraph()
@@ -126,12 +129,18 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         for factor in t.factors():
             graph.add(factor)
     thetas = np.array(initial, dtype=float)
+    for t in terms:
+        t.measure(thetas, robust=True)
+    if schedule is None:
+        schedule = gnc_start(np.concatenate([n for t in terms for n in t.norms] or [[]]),
+                             options.inlier_sigmas)
     stages = schedule + [math.inf] * (max_final_rounds - 1)
     iterations = 0
     bar = tqdm(total=len(stages), desc="batch", disable=not progress, leave=False)
     for stage, mu in enumerate(stages):
-        for t in terms:
-            t.measure(thetas, robust=stage == 0)
+        if stage > 0:
+            for t in terms:
+                t.measure(thetas)
         changed = sum(t.set_weights(options.inlier_sigmas, mu) for t in terms)
         if stage >= len(schedule) and changed == 0:
             break

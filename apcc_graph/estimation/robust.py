@@ -53,3 +53,25 @@ def gnc_schedule(mu0: float = 1.0, factor: float = 4.0, steps: int = 3) -> list[
     ``mu0``.
     """
     return [mu0 * factor**i for i in range(steps)] + [math.inf]
+
+
+def gnc_start(norms: FloatArray, threshold: float, spread: float = 4.0, factor: float = 4.0,
+              mu_last: float = 10.0) -> list[float]:
+    """A GNC continuation fitted to the residuals at the start.
+
+    The first ``mu`` puts the surrogate's cut-off (the residual beyond which the weight is 0,
+    ``sqrt((mu + 1) / mu) c``) at ``spread`` times the median residual, and never below
+    ``sqrt(2) c`` (``mu = 1``) nor above ``30 c``: a start whose true observations sit several
+    thresholds away (angles a degree off are 9 px at f = 500 px) keeps them in while the
+    solution moves, and a good start begins at ``mu = 1``. ``mu`` then grows by ``factor``
+    until it passes ``mu_last``, and the truncated quadratic itself (``inf``) ends it.
+    """
+    finite = np.asarray(norms, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    median = float(np.median(finite)) if len(finite) else 0.0
+    cutoff = min(max(spread * median, math.sqrt(2.0) * threshold), 30.0 * threshold)
+    mu = threshold**2 / (cutoff**2 - threshold**2)
+    out = [mu]
+    while out[-1] < mu_last:
+        out.append(out[-1] * factor)
+    return out + [math.inf]
