@@ -69,11 +69,11 @@ def build_terms(sequence: Sequence, options: GraphOptions) -> list[CameraTerms]:
 
 
 def optimise(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, frames: SequenceOf[int],
-             max_iterations: int) -> tuple[FloatArray, int]:
+             max_iterations: int, relative_tolerance: float = 1e-6) -> tuple[FloatArray, int]:
     """Levenberg-Marquardt from ``thetas``; the optimised ``(F, S)`` angles and iterations."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-6)
+    params.setRelativeErrorTol(relative_tolerance)
     params.setAbsoluteErrorTol(1e-9)
     ordering = gtsam.Ordering()  # frames in time order: the graph is banded
     for f in frames:
@@ -144,7 +144,9 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         changed = sum(t.set_weights(options.inlier_sigmas, mu) for t in terms)
         if stage >= len(schedule) and changed == 0:
             break
-        thetas, its = optimise(graph, thetas, frames, max_iterations)
+        # Intermediate stages only lead the weights; the truncated quadratic is solved tightly.
+        tolerance = 1e-6 if math.isinf(mu) else 1e-3
+        thetas, its = optimise(graph, thetas, frames, max_iterations, tolerance)
         iterations += its
         bar.update()
     bar.close()
