@@ -104,13 +104,7 @@ class LiveTracks:
                         or length >= self.max_frames):
                     due.add(piece)
                     del state.piece_of[tid]
-            if not due:
-                continue
-            obs = self._collect(state, due)
-            for piece in due:
-                state.first.pop(piece)
-                state.last.pop(piece)
-                state.points.pop(piece, None)
+            obs = self._take(state, due)
             if obs is not None:
                 out[cam] = obs
         return out
@@ -119,16 +113,20 @@ class LiveTracks:
         """Commit every live piece (end of a stream)."""
         out: dict[int, TrackObservations] = {}
         for cam, state in self._cams.items():
-            due = set(state.first)
             state.piece_of.clear()
-            obs = self._collect(state, due) if due else None
-            for piece in due:
-                state.first.pop(piece)
-                state.last.pop(piece)
-                state.points.pop(piece, None)
+            obs = self._take(state, set(state.first))
             if obs is not None:
                 out[cam] = obs
         return out
+
+    def _take(self, state: _Camera, due: set[int]) -> TrackObservations | None:
+        """The observations of pieces ``due`` (those long enough), and forget the pieces."""
+        obs = self._collect(state, due) if due else None
+        for piece in due:
+            state.first.pop(piece)
+            state.last.pop(piece)
+            state.points.pop(piece, None)
+        return obs
 
     def _collect(self, state: _Camera, due: set[int]) -> TrackObservations | None:
         found = self._gather(state, due)

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import gtsam
@@ -51,35 +50,13 @@ from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.robust import gnc_tls_weights
+from apcc_graph.estimation.smoother import SmootherFrame
 from apcc_graph.robot import Robot
 from apcc_graph.sequence import FrameObservations, Sequence
 from factors.projection import CameraChain, ProjectionFactor, robust_residual_norms
 from factors.track_points import TrackObservations
 
 FloatArray = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class SmootherFrame:
-    """One frame's estimate as the smoother returns it.
-
-    Attributes:
-        frame: 0-based frame index (the order of :meth:`FixedLagSmoother.update` calls).
-        timestamp: seconds.
-        thetas: ``(S,)`` angles (radians).
-        sigmas: ``(S,)`` marginal standard deviations (radians; NaN without uncertainty).
-        status: ``(S,)`` per segment: ``"ok"`` (the new frame's observations refined it),
-            ``"predicted"`` (no known point was seen: the prediction), ``"initial"`` (first
-            frame), ``"recovered"`` (after a gtsam failure).
-        calibration: reserved for self-calibration (``None``).
-    """
-
-    frame: int
-    timestamp: float
-    thetas: FloatArray
-    sigmas: FloatArray
-    status: NDArray[np.str_]
-    calibration: FloatArray | None = None
 
 
 class ProjectionFixedLagSmoother:

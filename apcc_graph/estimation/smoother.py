@@ -95,7 +95,8 @@ class SmootherFrame:
         sigmas: ``(S,)`` marginal standard deviations (radians; NaN without uncertainty).
         status: ``(S,)`` per segment: ``"ok"`` (measured), ``"no-tracks"``, ``"no-motion"``,
             ``"no-consensus"``, ``"no-camera"`` (the prior carries it), ``"initial"`` (first
-            frame), ``"recovered"`` (after a gtsam failure).
+            frame), ``"recovered"`` (after a gtsam failure); the projection smoother also
+            ``"predicted"`` (no known point seen: the prediction stands).
         calibration: ``(S, 2)`` current ``k`` and ``delta_max`` (radians) when self-calibrating.
     """
 
