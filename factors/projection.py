@@ -221,10 +221,10 @@ def compress(H: FloatArray, g: FloatArray, cost: float) -> tuple[FloatArray, Flo
     scale = max(float(np.max(np.diag(H), initial=0.0)), 1e-300)
     A = np.zeros((D + 1, D), order="F")
     try:
-        U = scipy.linalg.cholesky(H + 1e-12 * scale * np.eye(D), lower=False,
-                                  check_finite=False)
-        e = scipy.linalg.solve_triangular(U, g, trans="T", check_finite=False)
-        A[:D] = U
+        # numpy's Cholesky: scipy's took 20x longer at D ~ 500 on 2 busy cores (threading).
+        L = np.linalg.cholesky(H + 1e-12 * scale * np.eye(D))
+        e = scipy.linalg.solve_triangular(L, g, lower=True, check_finite=False)
+        A[:D] = L.T
     except np.linalg.LinAlgError:
         lam, vec = np.linalg.eigh(H)
         keep = lam > 1e-12 * max(float(lam[-1]), scale)
