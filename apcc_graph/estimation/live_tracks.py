@@ -155,11 +155,15 @@ class LiveTracks:
         obs = TrackObservations.build(cam, frames[order], pieces[index], xy, whiten)
         return obs, weights, index
 
-    def live_rows(self, cam: int) -> tuple[TrackObservations, FloatArray, IntArray] | None:
-        """Camera ``cam``'s live pieces with at least ``min_rows`` rows: observations (ids are
-        piece ids), weights, and row positions for :meth:`set_weights`."""
+    def live_rows(self, cam: int, min_rows: int | None = None
+                  ) -> tuple[TrackObservations, FloatArray, IntArray] | None:
+        """Camera ``cam``'s live pieces seen in at least ``min_rows`` frames (default the
+        store's ``min_rows``): observations (ids are piece ids), weights, and row positions for
+        :meth:`set_weights`."""
         state = self._cams[cam]
-        return self._gather(state, set(state.first))
+        need = self.min_rows if min_rows is None else int(min_rows)
+        pieces = {p for p, f in state.first.items() if state.last[p] - f + 1 >= need}
+        return self._gather(state, pieces)
 
     def set_weights(self, cam: int, index: IntArray, weights: FloatArray) -> None:
         """Store robust decisions for rows at buffer positions ``index`` (from

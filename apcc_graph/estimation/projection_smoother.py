@@ -73,6 +73,10 @@ class ProjectionFixedLagSmoother:
             more than this since their last linearisation (radians).
         loose_sigma: without a motion prior, each frame gets this weak prior at its initial
             guess (radians), so that a frame without observations stays determined.
+        min_live_rows: a live piece joins the live factor (and its point the initial guesses)
+            once it has this many observations: with two or three, a wrong association cannot
+            be told from the rest, and at the start of a sequence such points misled the
+            initial guess by degrees. Committed pieces keep all their observations.
         relinearize: keep committed pieces as Python factors that iSAM2 re-linearises when
             their frames move more than ``relinearize_threshold`` (default). ``False``
             linearises each piece once, when it is committed: faster, but the newest frames'
@@ -99,6 +103,7 @@ class ProjectionFixedLagSmoother:
         relinearize_threshold: float = 3e-4,
         loose_sigma: float = math.radians(30.0),
         relinearize: bool = True,
+        min_live_rows: int = 4,
     ) -> None:
         if not isinstance(robot, Robot):
             raise ValueError(f"ProjectionFixedLagSmoother.robot: expected a Robot, got "
@@ -122,6 +127,10 @@ class ProjectionFixedLagSmoother:
         self.relinearize_threshold = float(relinearize_threshold)
         self.loose_sigma = float(loose_sigma)
         self.relinearize = bool(relinearize)
+        if int(min_live_rows) < 2:
+            raise ValueError(f"ProjectionFixedLagSmoother.min_live_rows = {min_live_rows!r}: "
+                             "expected at least 2")
+        self.min_live_rows = int(min_live_rows)
         max_frames = self.options.max_track_frames or 10**9
         self._tracks = LiveTracks(robot.camera_segments, max_frames,
                                   self.options.min_track_rows)
@@ -289,7 +298,7 @@ class ProjectionFixedLagSmoother:
         its point. Returns (position in graph, camera, factor)."""
         out = []
         for cam in self.robot.camera_segments:
-            found = self._tracks.live_rows(cam)
+            found = self._tracks.live_rows(cam, self.min_live_rows)
             if found is None:
                 continue
             obs, weights, index = found
