@@ -4,7 +4,8 @@ Every observation enters the smoother's graph exactly once, inside the projectio
 track (:mod:`factors.projection`). A track is therefore held here while it is being observed
 and committed, all its observations at once, when one of these happens:
 
-- it ends: the camera no longer sees it in the new frame;
+- it ends: the camera no longer sees it in the new frame (a frame in which the camera sees
+  nothing at all ends no track);
 - its first frame is about to leave the smoother's window (a piece of a track that outlives the
   window: the rest of the track starts a new piece with its own point);
 - it reached ``max_frames`` frames.
@@ -96,11 +97,15 @@ class LiveTracks:
         """
         out: dict[int, TrackObservations] = {}
         for cam, state in self._cams.items():
-            now = set(seen.get(cam, np.zeros(0, np.int64)).tolist())
+            blind = cam not in seen or len(seen[cam]) == 0
+            now = set() if blind else set(seen[cam].tolist())
             due = set()
             for tid, piece in list(state.piece_of.items()):
                 length = frame - state.first[piece]
-                if (tid not in now or state.first[piece] < leaving_before
+                # A camera that saw nothing at all (a dropped frame) ends no track: its
+                # tracks may go on in the next frame.
+                ended = not blind and tid not in now
+                if (ended or state.first[piece] < leaving_before
                         or length >= self.max_frames):
                     due.add(piece)
                     del state.piece_of[tid]

@@ -1,0 +1,649 @@
+"""The experimental projection smoother and its parts: the live-track bookkeeping, the new
+frame's initial guess, and the smoother itself on small room-scene simulations.
+
+Every simulation uses a fixed seed; the figures quoted next to the assertions were measured on
+commit e8f4598 (degrees unless stated).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import random_pose
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import apcc_graph
+from apcc_graph.estimation.batch import batch_estimate
+from apcc_graph.estimation.initial_guess import FrameRows, frame_poses, predict, refine
+from apcc_graph.estimation.live_tracks import LiveTracks
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.projection_smoother import (
+    ProjectionFixedLagSmoother,
+    projection_smoother_estimate,
+)
+from apcc_graph.estimation.smoother import SmootherFrame, smoother_estimate
+from apcc_graph.robot import Robot, load_robot
+from apcc_graph.sequence import FrameObservations, Sequence
+from apcc_graph.sequence_bound import sequence_bound
+from apcc_graph.simulate import Simulation, simulate
+
+REPO = Path(__file__).resolve().parents[1]
+ROBOT = REPO / "data/robots/planar_three.toml"
+
+
+@pytest.fixture(scope="module")
+def robot() -> Robot:
+    return load_robot(ROBOT)
+
+
+def room(robot: Robot, n_frames: int, noise_px: float, seed: int = 1) -> Simulation:
+    return simulate(robot, n_frames, noise_px, 0.0, seed, scene="room", n_points=4000, fps=30)
+
+
+def deg(x: np.ndarray | float) -> np.ndarray:
+    return np.degrees(np.asarray(x, dtype=float))
+
+
+def thetas(frames: list[SmootherFrame]) -> np.ndarray:
+    return np.array([fr.thetas for fr in frames])
+
+
+def blank(obs: FrameObservations) -> FrameObservations:
+    """The frame with every camera's tracks removed."""
+    return FrameObservations(obs.timestamp, {}, obs.world_T_base)
+
+
+# ================================================================ 1. LiveTracks bookkeeping
+def rows_of(ids: list[int], frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Track ids, xy and whitening of one synthetic frame: ``xy = (frame, track id)`` so that a
+    committed row tells where it came from."""
+    ids_arr = np.asarray(ids, dtype=np.int64)
+    xy = np.column_stack([np.full(len(ids), float(frame)), ids_arr.astype(float)])
+    return ids_arr, xy, np.tile(np.eye(2), (len(ids), 1, 1))
+
+
+def committed(obs) -> list[tuple[int, int, int]]:  # noqa: ANN001
+    """(piece id, frame, track id) of every committed row (track id read back from xy)."""
+    return [(int(obs.ids[t]), int(f), int(xy[1]))
+            for t, f, xy in zip(obs.tracks, obs.frames, obs.xy, strict=True)]
+
+
+def test_a_track_that_ends_is_committed_with_all_its_rows_and_a_seen_one_is_not() -> None:
+    live = LiveTracks((0,), max_frames=100, min_rows=2)
+    for f in range(5):
+        assert live.take_due(f, {0: np.array([7, 8])}, leaving_before=0) == {}
+        live.add(f, 0, *rows_of([7, 8], f))
+    piece7, piece8 = live.piece_ids(0, np.array([7, 8]))
+    out = live.take_due(5, {0: np.array([8])}, leaving_before=0)
+    assert sorted(out) == [0]
+    obs = out[0]
+    assert len(obs) == 5 and obs.n_tracks == 1
+    assert committed(obs) == [(piece7, f, 7) for f in range(5)]
+    # Track 8 is still seen: not committed, still live under the same piece.
+    assert live.piece_ids(0, np.array([7, 8])).tolist() == [-1, piece8]
+    live.add(5, 0, *rows_of([8], 5))
+    rest = live.take_all()
+    assert committed(rest[0]) == [(piece8, f, 8) for f in range(6)]
+    assert live.take_all() == {}  # nothing is committed twice
+    # After take_all a track seen again starts a new piece.
+    assert live.piece_ids(0, np.array([8])).tolist() == [-1]
+    assert live.take_due(6, {0: np.array([8])}, leaving_before=0) == {}
+    live.add(6, 0, *rows_of([8], 6))
+    assert live.piece_ids(0, np.array([8]))[0] not in (-1, piece7, piece8)
+
+
+def test_a_piece_leaving_the_window_is_committed_and_the_track_starts_a_new_piece() -> None:
+    live = LiveTracks((0,), max_frames=100, min_rows=2)
+    for f in range(4):
+        live.add(f, 0, *rows_of([3], f))
+    old = int(live.piece_ids(0, np.array([3]))[0])
+    live.points(0)[old] = np.ones(3)
+    # Frame 0 leaves the window at frame 4: the piece (frames 0..3) is committed although the
+    # track is still seen ...
+    out = live.take_due(4, {0: np.array([3])}, leaving_before=1)
+    assert committed(out[0]) == [(old, f, 3) for f in range(4)]
+    assert old not in live.points(0)  # its cached point is forgotten with it
+    live.drop_frames_before(1)
+    # ... and the track's next observation starts a new piece with a new id.
+    live.add(4, 0, *rows_of([3], 4))
+    new = int(live.piece_ids(0, np.array([3]))[0])
+    assert new != old and new >= 0
+    live.add(5, 0, *rows_of([3], 5))
+    assert committed(live.take_all()[0]) == [(new, 4, 3), (new, 5, 3)]
+
+
+def test_max_frames_cuts_pieces() -> None:
+    live = LiveTracks((0,), max_frames=3, min_rows=1)
+    pieces = []
+    for f in range(8):
+        for obs in live.take_due(f, {0: np.array([5])}, leaving_before=0).values():
+            pieces.append(committed(obs))
+        live.add(f, 0, *rows_of([5], f))
+    pieces += [committed(obs) for obs in live.take_all().values()]
+    frames = [[f for _, f, _ in rows] for rows in pieces]
+    assert frames == [[0, 1, 2], [3, 4, 5], [6, 7]]
+    assert len({rows[0][0] for rows in pieces}) == 3  # three pieces, three ids
+
+
+def test_pieces_shorter_than_min_rows_are_dropped() -> None:
+    live = LiveTracks((0,), max_frames=100, min_rows=3)
+    live.add(0, 0, *rows_of([1, 2], 0))
+    live.add(1, 0, *rows_of([1, 2], 1))
+    assert live.take_due(2, {0: np.array([2])}, leaving_before=0) == {}  # track 1: 2 rows
+    live.add(2, 0, *rows_of([2], 2))
+    # A camera that saw nothing ends no track; a frame with another track ends track 2.
+    assert live.take_due(3, {0: np.array([], dtype=np.int64)}, leaving_before=0) == {}
+    assert live.take_due(3, {0: np.array([9])}, leaving_before=0)[0].n_tracks == 1
+    # Nothing of track 1 comes back later.
+    assert live.take_all() == {}
+
+
+def name(frames: np.ndarray, track_ids: np.ndarray) -> np.ndarray:
+    """A weight that names its row: frame / 10 + track id / 1000."""
+    return frames / 10.0 + track_ids / 1000.0
+
+
+def test_set_weights_writes_to_the_right_rows() -> None:
+    live = LiveTracks((0, 2), max_frames=100, min_rows=2)
+    # Camera 2's track 3 ends at frame 3: its rows stay in the buffer until their frames leave.
+    streams = {0: [[4, 1, 9], [9, 4, 1], [1, 4, 9, 6], [6, 9, 4, 1]],
+               2: [[2, 3], [3, 2, 5], [5, 3, 2], [2, 5]]}
+    for f in range(4):
+        seen = {cam: np.array(s[f], dtype=np.int64) for cam, s in streams.items()}
+        live.take_due(f, seen, leaving_before=0)
+        for cam, s in streams.items():
+            ids, xy, whiten = rows_of(s[f], f)
+            live.add(f, cam, ids, xy, whiten, name(np.full(len(ids), f), ids))
+    for cam in (0, 2):
+        obs, weights, index = live.live_rows(cam)
+        tracks = obs.xy[:, 1]
+        # The first decisions (given to add) come back with their rows ...
+        np.testing.assert_array_equal(weights, name(obs.frames, tracks))
+        # ... and so do new ones.
+        pick = np.arange(len(obs)) % 2 == 0
+        live.set_weights(cam, index[pick], 1.0 + name(obs.frames, tracks)[pick])
+        again, new_weights, _ = live.live_rows(cam)
+        np.testing.assert_array_equal(again.frames, obs.frames)
+        np.testing.assert_array_equal(again.xy, obs.xy)
+        np.testing.assert_array_equal(new_weights, name(obs.frames, tracks) + pick)
+    assert sorted(set(live.live_rows(2)[0].xy[:, 1].astype(int).tolist())) == [2, 5]
+    # live_rows(cam, n): only pieces seen in at least n frames.
+    obs, _, _ = live.live_rows(0, 3)
+    assert sorted(set(obs.xy[:, 1].astype(int).tolist())) == [1, 4, 9]
+
+
+def reference_pieces(streams: dict[int, list[list[int]]], window: int, max_frames: int
+                     ) -> tuple[list[dict[int, list[tuple[int, int, int]]]],
+                                dict[int, list[tuple[int, int, int]]]]:
+    """What LiveTracks should commit: per take_due call, camera -> (piece, frame, track) rows
+    of the pieces due (all their rows, before the min_rows filter), and what take_all commits.
+    Piece ids are handed out in the order of ``add`` (cameras in the order of ``streams``)."""
+    n_frames = len(next(iter(streams.values())))
+    live: dict[int, dict[int, tuple[int, int]]] = {c: {} for c in streams}
+    rows: dict[int, list[tuple[int, int, int]]] = {}
+    next_piece = 0
+    calls = []
+    for f in range(n_frames):
+        leaving_before = max(0, f - window)
+        due_now: dict[int, list[tuple[int, int, int]]] = {}
+        for cam, stream in streams.items():
+            for tid, (piece, first) in list(live[cam].items()):
+                # A camera that sees nothing in a frame ends no track.
+                ended = bool(stream[f]) and tid not in stream[f]
+                if ended or first < leaving_before or f - first >= max_frames:
+                    due_now.setdefault(cam, []).extend(rows.pop(piece))
+                    del live[cam][tid]
+        calls.append(due_now)
+        for cam, stream in streams.items():
+            for tid in stream[f]:
+                if tid not in live[cam]:
+                    live[cam][tid] = (next_piece, f)
+                    rows[next_piece] = []
+                    next_piece += 1
+                rows[live[cam][tid][0]].append((live[cam][tid][0], f, tid))
+    final = {cam: [r for piece, _ in pieces.values() for r in rows[piece]]
+             for cam, pieces in live.items()}
+    return calls, final
+
+
+def long_enough(rows: list[tuple[int, int, int]], min_rows: int) -> list[tuple[int, int, int]]:
+    counts: dict[int, int] = {}
+    for piece, _, _ in rows:
+        counts[piece] = counts.get(piece, 0) + 1
+    return sorted(r for r in rows if counts[r[0]] >= min_rows)
+
+
+frame_ids = st.lists(st.integers(0, 5), unique=True, max_size=6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(stream0=st.lists(frame_ids, min_size=1, max_size=14), data=st.data(),
+       window=st.integers(1, 6), max_frames=st.integers(1, 7), min_rows=st.integers(1, 3))
+def test_random_streams_commit_every_observation_exactly_once(
+        stream0: list[list[int]], data: st.DataObject, window: int, max_frames: int,
+        min_rows: int) -> None:
+    stream2 = data.draw(st.lists(frame_ids, min_size=len(stream0), max_size=len(stream0)))
+    streams = {0: stream0, 2: stream2}
+    live = LiveTracks((0, 2), max_frames=max_frames, min_rows=min_rows)
+    got: dict[int, list[tuple[int, int, int]]] = {0: [], 2: []}
+    calls, final = reference_pieces(streams, window, max_frames)
+    for f in range(len(stream0)):
+        leaving_before = max(0, f - window)
+        out = live.take_due(f, {c: np.asarray(s[f], dtype=np.int64) for c, s in streams.items()},
+                            leaving_before)
+        for cam in (0, 2):
+            want = long_enough(calls[f].get(cam, []), min_rows)
+            rows = sorted(committed(out[cam])) if cam in out else []
+            assert rows == want, f"frame {f}, camera {cam}"
+            assert (cam in out) == bool(want)  # no empty entries
+            got[cam] += rows
+        live.drop_frames_before(leaving_before)  # as the smoother does: all committed by now
+        for cam, stream in streams.items():
+            live.add(f, cam, *rows_of(stream[f], f))
+    out = live.take_all()
+    for cam in (0, 2):
+        rows = sorted(committed(out[cam])) if cam in out else []
+        assert rows == long_enough(final[cam], min_rows)
+        got[cam] += rows
+    assert live.take_all() == {}
+    for cam, stream in streams.items():
+        seen = [(f, tid) for f, ids in enumerate(stream) for tid in ids]
+        pairs = [(f, tid) for _, f, tid in got[cam]]
+        assert len(pairs) == len(set(pairs))  # each observation at most once
+        if min_rows == 1:
+            assert sorted(pairs) == sorted(seen)  # ... and every one of them
+        else:
+            assert set(pairs) <= set(seen)
+
+
+# ================================================================= 2. the initial guess
+def test_frame_poses_equal_forward_kinematics_and_their_derivatives(robot: Robot) -> None:
+    rng = np.random.default_rng(5)
+    base = random_pose(rng, 0.5, 0.3)
+    for world_T_base in (None, base):
+        for _ in range(3):
+            th = rng.uniform(-1.0, 1.0, robot.n_segments)
+            tips, derivs = frame_poses(th, robot, world_T_base)
+            np.testing.assert_allclose(np.array(tips), robot.forward(th, None, world_T_base),
+                                       atol=1e-12)
+            h = 1e-6
+            for j in range(robot.n_segments):
+                step = np.zeros(robot.n_segments)
+                step[j] = h
+                plus, _ = frame_poses(th + step, robot, world_T_base)
+                minus, _ = frame_poses(th - step, robot, world_T_base)
+                for i in range(robot.n_segments):
+                    numeric = (plus[i] - minus[i]) / (2 * h)
+                    if j <= i:
+                        assert derivs[i].shape == (i + 1, 4, 4)
+                        np.testing.assert_allclose(derivs[i][j], numeric, atol=1e-7)
+                    else:  # segment j is beyond tip i: no effect
+                        np.testing.assert_allclose(numeric, 0.0, atol=1e-12)
+
+
+def test_predict_is_constant_velocity_within_the_limits(robot: Robot) -> None:
+    a, b = np.radians([10.0, -5.0, 59.0]), np.radians([8.0, -4.0, 50.0])
+    np.testing.assert_allclose(predict(a, None, robot), a)
+    lim = np.array([s.theta_max for s in robot.segments])
+    np.testing.assert_allclose(predict(a, b, robot), np.clip(2 * a - b, -lim, lim))
+    assert predict(a, b, robot)[2] == pytest.approx(lim[2])
+
+
+@pytest.fixture(scope="module")
+def pnp_sim(robot: Robot) -> Simulation:
+    return room(robot, 12, 0.0, seed=2)
+
+
+def frame_rows(sim: Simulation, f: int, noise_px: float = 0.0, outlier_fraction: float = 0.0,
+               seed: int = 0, cameras: tuple[int, ...] | None = None, limit: int | None = None
+               ) -> tuple[list[FrameRows], list[np.ndarray]]:
+    """Frame f's observations with the true world points of their landmarks; optionally with
+    pixel noise and a fraction of rows replaced by random pixels (and which rows those are)."""
+    rng = np.random.default_rng(seed)
+    robot = sim.sequence.robot
+    rows, replaced = [], []
+    for cam, trk in sim.sequence.tracks.items():
+        if cameras is not None and cam not in cameras:
+            continue
+        camera = robot.cameras[cam]
+        sel = np.flatnonzero(trk.frames == f)[:limit]
+        uv = sim.clean_uv[cam][sel] + rng.normal(0.0, noise_px, (len(sel), 2))
+        bad = np.zeros(len(sel), dtype=bool)
+        bad[rng.choice(len(sel), int(round(outlier_fraction * len(sel))), replace=False)] = True
+        uv[bad] = rng.uniform([0.0, 0.0], [camera.width, camera.height], (bad.sum(), 2))
+        xy = camera.normalized(uv)
+        whiten = camera.pixel_jacobian(xy) / max(noise_px, 1.0)
+        rows.append(FrameRows(cam, sim.points_world[sim.landmarks[cam][sel]], xy, whiten))
+        replaced.append(bad)
+    return rows, replaced
+
+
+OFFSET = np.radians([1.5, -2.0, 1.0])
+
+
+def test_refine_recovers_the_true_angles_from_noise_free_pixels(pnp_sim: Simulation) -> None:
+    f = 8
+    truth = pnp_sim.sequence.thetas[f]
+    rows, _ = frame_rows(pnp_sim, f)
+    assert all(len(r.points) > 20 for r in rows)
+    guess = refine(truth + OFFSET, pnp_sim.sequence.robot, None, rows, 3.5)
+    assert guess.refined
+    # Measured: 1e-15 rad.
+    np.testing.assert_allclose(guess.thetas, truth, atol=1e-6, rtol=0)
+    assert [len(flags) for flags in guess.row_inliers] == [len(r.points) for r in rows]
+    assert all(flags.all() for flags in guess.row_inliers)
+    assert guess.inliers.tolist() == [len(r.points) for r in rows]
+
+
+def test_refine_ignores_twenty_percent_random_pixels(pnp_sim: Simulation) -> None:
+    f = 8
+    truth = pnp_sim.sequence.thetas[f]
+    rows, replaced = frame_rows(pnp_sim, f, noise_px=1.0, outlier_fraction=0.2, seed=3)
+    guess = refine(truth + OFFSET, pnp_sim.sequence.robot, None, rows, 3.5)
+    assert guess.refined
+    error = float(np.max(deg(np.abs(guess.thetas - truth))))
+    # Measured 0.016: the noise floor (without the random pixels, noise seeds 0-5 give up to
+    # 0.028 on this frame's 180-250 points per camera).
+    assert error < 0.02, f"{error:.4f} deg"
+    for flags, bad in zip(guess.row_inliers, replaced, strict=True):
+        assert not flags[bad].any()  # every random pixel is flagged
+        assert np.mean(flags[~bad]) > 0.98  # and nearly every true one kept (measured 1.0)
+    assert guess.inliers.tolist() == [int(flags.sum()) for flags in guess.row_inliers]
+    # The random pixels have no influence at all: the same angles as from the true rows alone
+    # (measured 1e-12 rad apart).
+    true_rows = [FrameRows(r.camera, r.points[~bad], r.xy[~bad], r.whiten[~bad])
+                 for r, bad in zip(rows, replaced, strict=True)]
+    oracle = refine(truth + OFFSET, pnp_sim.sequence.robot, None, true_rows, 3.5)
+    np.testing.assert_allclose(guess.thetas, oracle.thetas, atol=1e-9, rtol=0)
+
+
+def test_refine_keeps_the_prediction_without_enough_known_points(pnp_sim: Simulation) -> None:
+    robot = pnp_sim.sequence.robot
+    truth = pnp_sim.sequence.thetas[8]
+    prediction = truth + OFFSET
+    few, _ = frame_rows(pnp_sim, 8, limit=2)  # 2 rows per camera
+    guess = refine(prediction, robot, None, few[:2], 3.5, min_rows=6)  # 4 rows of 6 needed
+    assert not guess.refined
+    np.testing.assert_array_equal(guess.thetas, prediction)
+    assert guess.thetas is not prediction
+    # Only the camera on segment 1 (index 0) sees: segment 1 is refined, the others keep the
+    # prediction.
+    rows, _ = frame_rows(pnp_sim, 8, cameras=(0,))
+    guess = refine(prediction, robot, None, rows, 3.5)
+    assert guess.refined
+    assert abs(guess.thetas[0] - truth[0]) < 1e-6
+    np.testing.assert_array_equal(guess.thetas[1:], prediction[1:])
+
+
+# ================================================================ 3. the projection smoother
+def reference_committed(seq: Sequence, lag: float, min_rows: int, max_frames: int) -> int:
+    """Observations the smoother should commit: every track cut into pieces where it ends,
+    where its first frame leaves the window and at max_frames; pieces of min_rows or more."""
+    t = seq.timestamps
+    total = 0
+    for trk in seq.tracks.values():
+        by_frame = [set(trk.track_ids[trk.frames == f].tolist()) for f in range(seq.n_frames)]
+        live: dict[int, list[int]] = {}  # track id -> [first frame, rows]
+        for f in range(seq.n_frames):
+            first_kept = int(np.sum(t[:f] < t[f] - lag))  # frames before this one leave
+            for tid, (first, n) in list(live.items()):
+                ended = bool(by_frame[f]) and tid not in by_frame[f]
+                if ended or first < first_kept or f - first >= max_frames:
+                    total += n if n >= min_rows else 0
+                    del live[tid]
+            for tid in by_frame[f]:
+                live.setdefault(tid, [f, 0])[1] += 1
+        total += sum(n for _, n in live.values() if n >= min_rows)
+    return total
+
+
+@pytest.fixture(scope="module")
+def sim60(robot: Robot) -> Simulation:
+    """60 frames (2 s) of the room scene, 1 px noise, no outliers."""
+    return room(robot, 60, 1.0, seed=1)
+
+
+def stream(seq: Sequence, frames: list[FrameObservations] | None = None, lag: float = 1.0,
+           **kwargs: object) -> dict:
+    """Feed the frames one by one, popping final frames after every update."""
+    kwargs.setdefault("theta0", seq.thetas[0])
+    smoother = ProjectionFixedLagSmoother(seq.robot, lag=lag, **kwargs)  # type: ignore[arg-type]
+    frames = [seq.frame(f) for f in range(seq.n_frames)] if frames is None else frames
+    filtered, popped = [], []
+    for obs in frames:
+        filtered.append(smoother.update(obs))
+        popped.append(smoother.pop_final())
+    rest = smoother.finish()
+    return {"smoother": smoother, "filtered": filtered, "popped": popped, "rest": rest,
+            "final": [fr for pops in popped for fr in pops] + rest}
+
+
+@pytest.fixture(scope="module")
+def run60(sim60: Simulation) -> dict:
+    out = stream(sim60.sequence, uncertainty=False)
+    smoother = out["smoother"]
+    out["committed"] = smoother.committed_observations
+    out["again"] = smoother.finish()
+    out["committed_again"] = smoother.committed_observations
+    return out
+
+
+def test_every_observation_is_committed_exactly_once(sim60: Simulation, run60: dict) -> None:
+    seq = sim60.sequence
+    smoother = run60["smoother"]
+    assert smoother.recoveries == 0  # a restart forgets live tracks
+    total = sum(len(trk.frames) for trk in seq.tracks.values())
+    options = smoother.options
+    expected = reference_committed(seq, 1.0, options.min_track_rows,
+                                   options.max_track_frames or 10**9)
+    # Measured: 23658 of 23705 observations; the 47 left out are one-row pieces: 33 tracks
+    # seen once and 14 one-frame remainders of tracks cut where their first frame left the
+    # window (so "total minus the tracks seen once" is not a lower bound).
+    assert run60["committed"] == expected
+    assert total - 0.01 * total <= run60["committed"] <= total
+    assert run60["committed_again"] == run60["committed"]  # a second finish commits nothing
+    assert [fr.frame for fr in run60["again"]] == [fr.frame for fr in run60["rest"]]
+    np.testing.assert_array_equal(thetas(run60["again"]), thetas(run60["rest"]))
+    assert 0 <= smoother.outlier_observations < 0.05 * run60["committed"]  # measured 589
+
+
+def test_frames_leave_the_window_after_lag_seconds_once_and_in_order(sim60: Simulation,
+                                                                     run60: dict) -> None:
+    seq = sim60.sequence
+    t = seq.timestamps
+    done: list[int] = []
+    for f, pops in enumerate(run60["popped"]):
+        frames = [fr.frame for fr in pops]
+        # Exactly the frames older than lag seconds that had not left yet.
+        assert frames == [g for g in range(f) if t[g] < t[f] - 1.0 and g not in done], f
+        done += frames
+    assert len(done) > 20  # measured: 29 frames left during the stream
+    rest = [fr.frame for fr in run60["rest"]]
+    assert done + rest == list(range(seq.n_frames))
+    for fr in run60["final"]:
+        assert fr.timestamp == t[fr.frame] and fr.thetas.shape == (3,)
+    assert [fr.frame for fr in run60["filtered"]] == list(range(seq.n_frames))
+
+
+def compare_with_bound(sim: Simulation, final: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    seq = sim.sequence
+    rms = np.sqrt(np.mean((final - seq.thetas) ** 2, axis=0))
+    bound = sequence_bound(sim, 1.0, math.radians(0.1)).rms()
+    default = smoother_estimate(seq, theta0=seq.thetas[0], lag=1.0, uncertainty=False)
+    return rms / bound, rms / default.rms(seq.thetas)
+
+
+def test_one_pixel_noise_comes_close_to_the_cramer_rao_bound(sim60: Simulation,
+                                                             run60: dict) -> None:
+    to_bound, to_default = compare_with_bound(sim60, thetas(run60["final"]))
+    # Measured (seed 1): RMS 0.071, 0.118, 0.047 = 0.63, 1.34, 0.52x the bound and 0.60, 0.76,
+    # 0.25x the default (epipolar) smoother.
+    assert np.all(to_bound < 3.0), to_bound
+    assert np.all(to_default < 1.5), to_default
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+    "seed 3, 60 frames, 1 px, no outliers: segment 3 stays ~0.5 deg off through the sequence "
+    "(RMS 0.65 deg, 5.3x the Cramer-Rao bound, 4.1x the epipolar smoother); not yet explained"))
+def test_one_pixel_noise_on_another_seed(robot: Robot) -> None:
+    """Seeds 1, 2, 4 and 5 pass (at most 1.6x the bound); seed 3 does not."""
+    sim = room(robot, 60, 1.0, seed=3)
+    out = stream(sim.sequence, uncertainty=False)
+    to_bound, to_default = compare_with_bound(sim, thetas(out["final"]))
+    # Measured (seed 3): RMS 0.099, 0.117, 0.65 = 0.97, 1.04, 5.3x the bound and 0.73, 0.75,
+    # 4.1x the default smoother: segment 3 stays about 0.5 deg off through the whole sequence.
+    assert np.all(to_bound < 3.0), to_bound
+    assert np.all(to_default < 1.5), to_default
+
+
+@pytest.fixture(scope="module")
+def sim30_clean(robot: Robot) -> Simulation:
+    return room(robot, 30, 0.0, seed=1)
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+    "start-up: frames 1-3 get no vision (pieces join the live factor at 4 observations, the "
+    "prediction from one frame is that frame), so the first outlier decisions are taken at "
+    "angles 1.4-4.5 deg off and reject the true observations; without a motion prior the "
+    "estimate then runs off (71.5 deg)"))
+def test_noise_free_sequence_without_motion_prior_recovers_the_truth(
+        sim30_clean: Simulation) -> None:
+    """Without noise and without the motion prior the truth is the optimum of the graph."""
+    seq = sim30_clean.sequence
+    options = GraphOptions(motion_sigma=None, theta0_sigma=1e-6)
+    out = stream(seq, lag=1.0, options=options, uncertainty=False)
+    error = float(np.max(deg(np.abs(thetas(out["final"]) - seq.thetas))))
+    # Measured: 71 deg (9239 of 11146 noise-free observations judged outliers).
+    assert error < 1e-3, (f"{error:.3g} deg; {out['smoother'].outlier_observations} of "
+                          f"{out['smoother'].committed_observations} judged outliers")
+
+
+def test_noise_free_sequence_reaches_the_optimum_with_the_motion_prior(
+        sim30_clean: Simulation) -> None:
+    """The motion prior moves the optimum off the truth (the batch, started at the truth: 0.0015
+    deg); the smoother reaches that optimum."""
+    seq = sim30_clean.sequence
+    options = GraphOptions()
+    out = stream(seq, lag=1.0, options=options, uncertainty=False)
+    optimum = batch_estimate(seq, theta0=seq.thetas[0], initial=seq.thetas, options=options,
+                             marginals=False)
+    final = thetas(out["final"])
+    # Measured: 2.4e-4 from the batch, 1.7e-3 from the truth.
+    assert np.max(deg(np.abs(final - optimum.thetas))) < 1e-3
+    assert np.max(deg(np.abs(final - seq.thetas))) < 5e-3
+
+
+def test_a_frame_without_tracks_is_carried(sim60: Simulation, run60: dict) -> None:
+    seq = sim60.sequence
+    gap, n = 30, 45
+    frames = [seq.frame(f) for f in range(n)]
+    frames[gap] = blank(frames[gap])
+    out = stream(seq, frames, uncertainty=False)
+    assert np.all(np.isfinite(thetas(out["filtered"])))
+    assert np.all(np.isfinite(thetas(out["final"])))
+    assert [fr.frame for fr in out["final"]] == list(range(n))
+    assert list(out["filtered"][gap].status) == ["predicted"] * 3
+    error = deg(np.abs(thetas(out["final"]) - seq.thetas[:n])).max(axis=1)
+    clean = deg(np.abs(thetas(run60["final"][:n]) - seq.thetas[:n])).max(axis=1)
+    # Without the blank frame every final estimate is within 0.2 deg. With it the blank frame
+    # should hold the last angles (one frame's motion, about 1.5 deg) and the frames after it
+    # recover once the cameras see again. Measured: every track restarts a piece after the
+    # blank frame and pieces join the window at 4 observations, so frames 30-34 have no vision
+    # (filtered error 1.4 -> 5.5 deg); the new pieces' outlier decisions are taken at those
+    # angles, the estimate runs off (12-77 deg), gtsam raises "indeterminate system" at frame
+    # 41 (1 recovery); final estimates from the blank frame on are 39-77 deg off.
+    report = (f"recoveries {out['smoother'].recoveries}; max error after the blank frame "
+              f"{error[gap:].max():.2f} deg (without it {clean[gap:].max():.2f})")
+    assert error[gap] < 3.0, report
+    assert np.all(error[gap + 5:] < np.maximum(0.5, 2 * clean[gap + 5:])), report
+    assert out["smoother"].recoveries == 0, report
+    assert np.all(error[:gap] < np.maximum(0.5, 2 * clean[:gap])), report
+
+
+def test_a_frame_without_tracks_without_the_motion_prior(robot: Robot) -> None:
+    """No motion prior: the loose prior at the initial guess alone holds the blank frame, and a
+    0.2 s window marginalises it."""
+    seq = room(robot, 20, 1.0, seed=1).sequence
+    frames = [seq.frame(f) for f in range(seq.n_frames)]
+    frames[10] = blank(frames[10])
+    smoother = ProjectionFixedLagSmoother(robot, lag=0.2, options=GraphOptions(motion_sigma=None),
+                                          theta0=seq.thetas[0])
+    filtered = [smoother.update(obs) for obs in frames]
+    final = smoother.pop_final() + smoother.finish()
+    assert [fr.frame for fr in final] == list(range(seq.n_frames))
+    assert np.all(np.isfinite(thetas(filtered))) and np.all(np.isfinite(thetas(final)))
+    assert list(filtered[10].status) == ["predicted"] * 3
+    # Nothing but the loose prior (30 deg) holds it.
+    np.testing.assert_allclose(filtered[10].sigmas, smoother.loose_sigma, rtol=1e-3)
+    assert np.all(np.isfinite(filtered[11].sigmas))
+
+
+# --------------------------------------------------------------------------- validation
+@pytest.fixture(scope="module")
+def seq_short(robot: Robot) -> Sequence:
+    return room(robot, 20, 1.0, seed=1).sequence
+
+
+def test_non_increasing_timestamps_are_refused(seq_short: Sequence) -> None:
+    smoother = ProjectionFixedLagSmoother(seq_short.robot, theta0=seq_short.thetas[0],
+                                          uncertainty=False)
+    smoother.update(seq_short.frame(0))
+    smoother.update(seq_short.frame(1))
+    second = seq_short.frame(1)
+    for t in (second.timestamp, second.timestamp - 0.01, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match=r"frame 2: timestamp"):
+            smoother.update(replace(second, timestamp=t))
+    assert smoother.n_frames == 2  # nothing was added
+    smoother.update(seq_short.frame(2))
+    assert smoother.n_frames == 3
+
+
+def test_observations_of_a_segment_without_camera_are_refused(robot: Robot,
+                                                              seq_short: Sequence) -> None:
+    one_camera = Robot(robot.segments, [robot.cameras[0], None, None])
+    smoother = ProjectionFixedLagSmoother(one_camera, theta0=seq_short.thetas[0])
+    with pytest.raises(ValueError, match=r"frame 0: observations of camera 1.*no camera"):
+        smoother.update(seq_short.frame(0))
+    assert smoother.n_frames == 0
+    with pytest.raises(ValueError, match="camera 7"):
+        ProjectionFixedLagSmoother(robot).update(
+            FrameObservations(0.0, {7: (np.arange(3), np.zeros((3, 2)))}))
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"lag": 0.0}, "lag"), ({"lag": -1.0}, "lag"), ({"lag": float("nan")}, "lag"),
+    ({"lag": float("inf")}, "lag"),
+    ({"theta0": [0.0, 0.0]}, r"theta0 has shape \(2,\)"),
+    ({"theta0": np.zeros((1, 3))}, "theta0"), ({"theta0": [0.0, float("nan"), 0.0]}, "theta0"),
+    ({"options": GraphOptions(vision="epipolar")}, "projection model.*epipolar"),
+    ({"min_live_rows": 1}, "min_live_rows"),
+])
+def test_bad_smoother_arguments_are_refused(robot: Robot, options: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        ProjectionFixedLagSmoother(robot, **options)
+
+
+def test_a_robot_is_required() -> None:
+    with pytest.raises(ValueError, match="Robot"):
+        ProjectionFixedLagSmoother("planar_three")  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------ estimate() entry
+def test_estimate_with_the_projection_smoother(seq_short: Sequence) -> None:
+    est = apcc_graph.estimate(seq_short, method="smoother", vision="projection",
+                              theta0=seq_short.thetas[0], uncertainty=False)
+    assert est.method == "smoother"
+    F = seq_short.n_frames
+    assert est.thetas.shape == est.sigmas.shape == est.status.shape == (F, 3)
+    np.testing.assert_array_equal(est.timestamps, seq_short.timestamps)
+    assert np.all(np.isfinite(est.thetas))
+    assert est.status[0].tolist() == ["initial"] * 3
+    # It is the projection smoother's result, not the epipolar one's.
+    direct = projection_smoother_estimate(seq_short, theta0=seq_short.thetas[0],
+                                          uncertainty=False)
+    np.testing.assert_allclose(est.thetas, direct.thetas, atol=1e-12, rtol=0)
