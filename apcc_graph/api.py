@@ -26,14 +26,15 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         theta0_sigma: standard deviation of the prior on ``theta0`` (radians; default
             :class:`~apcc_graph.estimation.options.GraphOptions`' 0.1 deg); batch and
             smoother only (the chain starts exactly at ``theta0``).
-        vision: ``"projection"`` or ``"epipolar"`` (batch and smoother only). Default: the
-            batch's projection model; the smoother's epipolar model (its projection version,
-            :class:`~apcc_graph.estimation.projection_smoother.ProjectionFixedLagSmoother`,
-            is experimental).
+        vision: ``"projection"`` (default: every observation once, each track's point
+            eliminated) or ``"epipolar"`` (frame pairs, for comparison); batch and smoother
+            only.
         threshold_px: the tracks' pixel noise (pixels, default 1); batch and smoother only.
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
             :func:`~apcc_graph.estimation.batch.batch_estimate` or
-            :func:`~apcc_graph.estimation.smoother.smoother_estimate`).
+            :func:`~apcc_graph.estimation.smoother.smoother_estimate`); e.g.
+            ``calibrate=True``, self-calibration of each segment's k and delta_max (batch, or
+            smoother with ``vision="epipolar"``).
 
     Raises:
         ValueError: an unknown method.

@@ -39,6 +39,7 @@ _EXAMPLES = {
     "bench accuracy": "example:\n  apcc-graph bench accuracy --trials 1000 --plot /tmp/fig10.png",
     "bench calibration": "example:\n  apcc-graph bench calibration --growth 2 --seed 0",
     "bench tracking": "example:\n  apcc-graph bench tracking --frames 200",
+    "bench selfcal": "example:\n  apcc-graph bench selfcal --frames 600 --seeds 1,2,3",
     "bench images": "example:\n  apcc-graph bench images --frames 150 --seeds 1,2,3,4,5",
     "track": "example:\n  apcc-graph track my_recording --force",
     "bench smoother": "example:\n  apcc-graph bench smoother\n  apcc-graph bench smoother "
@@ -326,10 +327,29 @@ def _run_estimate(args: argparse.Namespace) -> str:
         options["threshold_px"] = args.noise_px
     elif args.vision is not None:
         raise UserError("--vision applies to --method batch and smoother only")
-    result = estimate(sequence, method=args.method, theta0=theta0, **options)
+    if args.calibrate:
+        if args.method == "chain" or (args.method == "smoother" and args.vision != "epipolar"):
+            raise UserError("--calibrate: self-calibration runs in --method batch, or in "
+                            "--method smoother --vision epipolar")
+        options["calibrate"] = True
+    try:
+        result = estimate(sequence, method=args.method, theta0=theta0, **options)
+    except ValueError as error:
+        raise UserError(str(error)) from None
     written = save_estimate(result, args.out)
+    if args.calibrate and args.method == "batch":
+        from apcc_graph.robot_file import save_robot
+
+        robot_path = Path(args.out) / "robot_calibrated.toml"
+        save_robot(result.robot, robot_path)
+        written = [*written, robot_path]
     lines = [f"{args.method}: {result.n_frames} frames, {sequence.n_segments} segments -> "
              f"{args.out} ({', '.join(p.name for p in written)})"]
+    if args.calibrate and result.calibration_sigmas is not None:
+        for i, (seg, sig) in enumerate(zip(result.robot.segments, result.calibration_sigmas,
+                                           strict=True)):
+            lines.append(f"segment {i + 1}: k = {seg.k:.4f} +/- {sig[0]:.4f}, delta_max = "
+                         f"{math.degrees(seg.delta_max):.3f} +/- {math.degrees(sig[1]):.3f} deg")
     if sequence.thetas is not None:  # evaluation only: the estimator never read these
         rms = np.degrees(result.rms(sequence.thetas))
         lines.append("RMS error vs the sequence's ground truth: "
@@ -530,10 +550,32 @@ def _run_bench_smoother(args: argparse.Namespace) -> str:
     if args.memory_frames and args.memory_frames < 1000:
         raise UserError(f"--memory-frames {args.memory_frames}: expected 0 (skip) or at least "
                         "1000")
+    try:
+        outliers = [float(v) for v in args.outliers.split(",") if v.strip()]
+    except ValueError:
+        outliers = []
+    if not outliers or not all(0.0 <= v < 1.0 for v in outliers):
+        raise UserError(f"--outliers {args.outliers!r}: expected comma-separated fractions in "
+                        "[0, 1), e.g. 0.1,0.3")
     result = run_smoother_benchmark(frames=args.frames, seeds=_int_list(args.seeds, "--seeds"),
-                                    methods=methods, long_frames=args.long_frames,
+                                    outliers=outliers, methods=methods,
+                                    long_frames=args.long_frames,
                                     memory_frames=args.memory_frames, progress=True)
     return format_smoother_benchmark(result)
+
+
+def _run_bench_selfcal(args: argparse.Namespace) -> str:
+    from apcc_graph.bench.self_calibration import (
+        format_self_calibration_benchmark,
+        run_self_calibration_benchmark,
+    )
+
+    if not 0.0 <= args.outliers < 1.0:
+        raise UserError(f"--outliers {args.outliers!r}: expected a fraction in [0, 1)")
+    result = run_self_calibration_benchmark(
+        frames=args.frames, seeds=_int_list(args.seeds, "--seeds"), outliers=args.outliers,
+        dk=args.dk, dd=math.radians(args.dd_deg), progress=True)
+    return format_self_calibration_benchmark(result)
 
 
 def _run_bench_calibration(args: argparse.Namespace) -> str:
@@ -719,9 +761,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help="pixel noise of the tracks, standard deviation per coordinate "
                      "(default: %(default)s); sets the outlier threshold and the sigmas")
     est.add_argument("--vision", choices=("projection", "epipolar"), default=None,
-                     help="vision model: projection (every observation once, each track's "
-                     "point eliminated; the batch's default) or epipolar (frame pairs; the "
-                     "smoother's default, its projection version is experimental)")
+                     help="vision model: projection (default: every observation once, each "
+                     "track's point eliminated) or epipolar (frame pairs, for comparison)")
+    est.add_argument("--calibrate", action="store_true",
+                     help="self-calibration: estimate each segment's k and delta_max with the "
+                     "angles (batch; or smoother with --vision epipolar); the batch writes "
+                     "robot_calibrated.toml")
     est.set_defaults(run=_run_estimate)
 
     ev = sub.add_parser(
@@ -842,20 +887,39 @@ def build_parser() -> argparse.ArgumentParser:
         help="the back end against the Cramer-Rao bound: accuracy, drift, speed, memory",
         description="Simulate 3-segment room-scene sequences (1 px noise, 10%% and 30%% "
         "outliers, ~150 tracks per camera, 30 fps) and measure the chain, the fixed-lag "
-        "smoother, the batch and the projection smoother beside the Cramer-Rao bound of the "
-        "same sequences, in one run.",
+        "smoother, the batch and the epipolar smoother beside the Cramer-Rao bound of the "
+        "same sequences (and the smoothers beside the bound of a 1 s fixed lag), in one run.",
         epilog=_EXAMPLES["bench smoother"], formatter_class=fmt,
     )
     smb.add_argument("--frames", type=_at_least(30), default=600,
                      help="frames of each accuracy run")
     smb.add_argument("--seeds", default="1,2,3,4,5", help="simulation seeds, comma-separated")
-    smb.add_argument("--methods", default="chain,smoother,batch,projection smoother",
+    smb.add_argument("--methods", default="chain,smoother,batch,epipolar smoother",
                      help="estimators, comma-separated (default: %(default)s)")
+    smb.add_argument("--outliers", default="0.1,0.3",
+                     help="outlier fractions, comma-separated (default: %(default)s)")
     smb.add_argument("--long-frames", type=int, default=3000,
                      help="frames of the drift and speed run (0 to skip)")
     smb.add_argument("--memory-frames", type=int, default=10_000,
                      help="frames of the memory run (0 to skip)")
     smb.set_defaults(run=_run_bench_smoother)
+
+    scb = bench_sub.add_parser(
+        "selfcal",
+        help="self-calibration of k and delta_max beside the Cramer-Rao bound",
+        description="Simulate room-scene sequences of the 3-segment robot, give the batch "
+        "segment models with k and delta_max off, and compare the batch with the true "
+        "models, the wrong ones and the wrong ones self-calibrated, beside the bound with "
+        "the models known and unknown (which also bounds k and delta_max).",
+        epilog=_EXAMPLES["bench selfcal"], formatter_class=fmt,
+    )
+    scb.add_argument("--frames", type=_at_least(30), default=600)
+    scb.add_argument("--seeds", default="1,2,3", help="simulation seeds, comma-separated")
+    scb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction")
+    scb.add_argument("--dk", type=float, default=0.03, help="error of every segment's k")
+    scb.add_argument("--dd-deg", type=float, default=3.0,
+                     help="error of every segment's delta_max, degrees")
+    scb.set_defaults(run=_run_bench_selfcal)
 
     trb = bench_sub.add_parser(
         "tracking", help="KLT tracking vs ORB matching: images per second and pixel error",
@@ -872,7 +936,7 @@ def build_parser() -> argparse.ArgumentParser:
         "images", help="images -> tracks -> smoother vs the same motion as simulated tracks",
         description="Render each tip camera's view of a textured room along a simulated "
         "motion, track the images (KLT) and run the smoother; compare with the same motion "
-        "observed as simulated 1 px tracks (issue 6's end-to-end targets), and time the "
+        "observed as simulated 1 px tracks, and time the "
         "tracker.",
         epilog=_EXAMPLES["bench images"], formatter_class=fmt,
     )

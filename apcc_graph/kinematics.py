@@ -257,6 +257,34 @@ def apcc_transform_derivative(
     return d_theta, d_psi
 
 
+def apcc_transform_calibration_derivative(
+    theta: ArrayLike, segment: Segment, psi: ArrayLike = 0.0
+) -> tuple[FloatArray, FloatArray]:
+    """Matrix derivatives ``(dT/dk, dT/ddelta_max)`` of :func:`apcc_transform`, ``(..., 4, 4)``.
+
+    The vectorised form of :func:`apcc_transform_scalar_calibration` (same maths): ``k`` moves
+    only the tip along the chord direction, ``dchord/dk = L (h - (1 + c s^2) / root)``;
+    ``delta_max`` turns only the tip, ``dbeta/ddelta_max = -theta / theta_max``. ``length``,
+    ``theta_max`` and ``psi`` are held fixed; bottom rows are zero.
+    """
+    theta = np.asarray(theta, dtype=float)
+    theta, psi_b = np.broadcast_arrays(theta, np.asarray(psi, dtype=float))
+    c = segment.link_ratio
+    s, h = np.sin(0.5 * theta), np.cos(0.5 * theta)
+    root = np.sqrt(1.0 - (c * s) ** 2)
+    dchord_k = segment.length * (h - (1.0 + c * s * s) / root)
+    cp, sp = np.cos(psi_b), np.sin(psi_b)
+    d_k = np.zeros(theta.shape + (4, 4))
+    d_k[..., 0, 3] = cp * s * dchord_k
+    d_k[..., 1, 3] = sp * s * dchord_k
+    d_k[..., 2, 3] = h * dchord_k
+    d_theta = apcc_transform_derivative(theta, segment, psi_b)[0]
+    d_delta = np.zeros(theta.shape + (4, 4))
+    d_delta[..., :3, :3] = d_theta[..., :3, :3] * (
+        -theta / (segment.theta_max * (1.0 - segment.deviation_rate)))[..., None, None]
+    return d_k, d_delta
+
+
 def apcc_body_twists(
     theta: ArrayLike, segment: Segment, psi: ArrayLike = 0.0
 ) -> tuple[FloatArray, FloatArray]:

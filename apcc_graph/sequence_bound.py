@@ -40,10 +40,13 @@ class SequenceBound:
         sigmas: ``(F, S)`` the smallest standard deviation an unbiased estimator can have for
             each angle (radians); ``inf`` where the data do not determine it.
         theta0_sigma: the start prior it was computed with (radians), or ``None``.
+        calibration: with unknown segment models, ``(S, 2)`` the bound of each segment's k and
+            delta_max (radians); ``None`` when the models were known.
     """
 
     sigmas: FloatArray
     theta0_sigma: float | None
+    calibration: FloatArray | None = None
 
     def rms(self, frames: slice | None = None) -> FloatArray:
         """``(S,)`` RMS of the per-angle bound over ``frames`` (default all), radians: the
@@ -59,8 +62,15 @@ class SequenceBound:
 
 def fisher_information(simulation: Simulation, noise_px: float,
                        theta0_sigma: float | None = math.radians(0.1),
-                       max_track_frames: int | None = None) -> FloatArray:
+                       max_track_frames: int | None = None,
+                       last_frame: int | None = None,
+                       calibration_sigmas: tuple[float, float] | None = None) -> FloatArray:
     """The ``(F S, F S)`` Fisher information of all angles, index ``f * S + j``.
+
+    With ``calibration_sigmas`` the segments' k and delta_max are unknowns too (the bound of a
+    self-calibrating estimator): the matrix is ``(F S + 2 S)`` square, the calibration of
+    segment j at ``F S + 2 j`` (k) and ``F S + 2 j + 1`` (delta_max), with priors of
+    ``calibration_sigmas`` (k, radians).
 
     Args:
         simulation: the simulated sequence and its ground truth.
@@ -70,6 +80,9 @@ def fisher_information(simulation: Simulation, noise_px: float,
         max_track_frames: cut tracks into pieces of at most this many frames, each with its
             own point (what an estimator that keeps only that much of a track can know);
             ``None`` for whole tracks.
+        last_frame: count only the observations of frames up to this one (what a
+            fixed-lag smoother has seen when it lets a frame go); the matrix keeps all frames,
+            and later frames then carry no information of their own.
     """
     if not noise_px > 0.0:
         raise ValueError(f"noise_px = {noise_px!r}: expected > 0 (pixels)")
@@ -77,12 +90,18 @@ def fisher_information(simulation: Simulation, noise_px: float,
     robot = seq.robot
     assert seq.thetas is not None
     n_frames, S = seq.n_frames, seq.n_segments
-    info = np.zeros((n_frames * S, n_frames * S))
+    calibrate = calibration_sigmas is not None
+    D0 = n_frames * S
+    info = np.zeros((D0 + (2 * S if calibrate else 0),) * 2)
     for cam in seq.tracks:
         camera = robot.cameras[cam]
         assert camera is not None
         tracks = seq.tracks[cam]
         inlier = ~simulation.outliers[cam]
+        if last_frame is not None:
+            inlier = inlier & (tracks.frames <= last_frame)
+        if not inlier.any():
+            continue
         ids = cut_tracks(tracks.frames, tracks.track_ids, max_track_frames)
         xy = camera.normalized(simulation.clean_uv[cam])
         obs = build_observations(cam, tracks.frames, ids, xy,
@@ -98,26 +117,34 @@ def fisher_information(simulation: Simulation, noise_px: float,
             first, last = int(part.frames.min()), int(part.frames.max())
             out = reduced_system(part, chain, seq.thetas[first:last + 1], first,
                                  np.ones(len(part)), simulation.points_world[landmark[chunk]],
-                                 refine_points=False)
+                                 refine_points=False, calibration=calibrate)
             index = ((np.arange(first, last + 1) * S)[:, None] + np.arange(n)).ravel()
+            if calibrate:
+                index = np.concatenate([index, D0 + np.arange(2 * n)])
             info[np.ix_(index, index)] += out.H
     if theta0_sigma is not None:
         info[np.arange(S), np.arange(S)] += 1.0 / theta0_sigma**2
+    if calibration_sigmas is not None:
+        prior = np.tile(1.0 / np.asarray(calibration_sigmas, dtype=float) ** 2, S)
+        info[D0 + np.arange(2 * S), D0 + np.arange(2 * S)] += prior
     return info
 
 
 def sequence_bound(simulation: Simulation, noise_px: float,
                    theta0_sigma: float | None = math.radians(0.1),
-                   max_track_frames: int | None = None) -> SequenceBound:
+                   max_track_frames: int | None = None,
+                   calibration_sigmas: tuple[float, float] | None = None) -> SequenceBound:
     """The per-frame, per-angle Cramer-Rao bound of a simulation (radians).
 
-    Args: as :func:`fisher_information`.
+    Args: as :func:`fisher_information`; with ``calibration_sigmas`` the segment models are
+        unknown too, and the bound of their k and delta_max is returned as well.
 
     Returns:
         The bound; angles the data leave undetermined (a frame no camera saw, no start prior
         and no motion) are ``inf``.
     """
-    info = fisher_information(simulation, noise_px, theta0_sigma, max_track_frames)
+    info = fisher_information(simulation, noise_px, theta0_sigma, max_track_frames,
+                              calibration_sigmas=calibration_sigmas)
     n_frames, S = simulation.sequence.n_frames, simulation.sequence.n_segments
     try:
         U = scipy.linalg.cholesky(info, lower=False, check_finite=False)
@@ -130,4 +157,74 @@ def sequence_bound(simulation: Simulation, noise_px: float,
         variance = (vec[:, good] ** 2) @ (1.0 / lam[good])
         null = np.sum(vec[:, ~good] ** 2, axis=1) > 1e-9
         variance[null] = np.inf
-    return SequenceBound(np.sqrt(variance).reshape(n_frames, S), theta0_sigma)
+    sigmas = np.sqrt(variance)
+    D0 = n_frames * S
+    calibration = None if calibration_sigmas is None else sigmas[D0:].reshape(S, 2)
+    return SequenceBound(sigmas[:D0].reshape(n_frames, S), theta0_sigma, calibration)
+
+
+@dataclass(frozen=True)
+class LagBound:
+    """The Cramer-Rao bound of a fixed-lag smoother's final estimates, at sampled frames.
+
+    A fixed-lag smoother lets frame ``f`` go once it has seen frame ``f + lag_frames``: its
+    final estimate of ``f`` can use no later observation. The bound of that estimate is the
+    ``f`` block of the inverse information of the observations up to ``f + lag_frames`` (the
+    marginalisation of older frames loses nothing in the linear-Gaussian limit). It lies between
+    the filtering bound (``lag_frames = 0``) and the whole sequence's (:func:`sequence_bound`).
+
+    Attributes:
+        frames: ``(K,)`` the sampled frames.
+        sigmas: ``(K, S)`` their per-angle bound (radians).
+        lag_frames: the lag in frames.
+    """
+
+    frames: NDArray[np.int64]
+    sigmas: FloatArray
+    lag_frames: int
+
+    def rms(self, first: int = 0, stop: int | None = None) -> FloatArray:
+        """``(S,)`` RMS of the bound over the sampled frames in ``first .. stop - 1``."""
+        keep = (self.frames >= first) & (self.frames < (stop if stop is not None else 2**62))
+        return np.sqrt(np.mean(self.sigmas[keep] ** 2, axis=0))
+
+    def window_rms(self, window: int = 100) -> FloatArray:
+        """``(W, S)`` :meth:`rms` over consecutive windows of ``window`` frames."""
+        end = int(self.frames.max()) + 1
+        return np.array([self.rms(s, s + window) for s in range(0, end, window)])
+
+
+def lag_bound(simulation: Simulation, noise_px: float, lag_frames: int,
+              theta0_sigma: float | None = math.radians(0.1), step: int = 10,
+              max_track_frames: int | None = None) -> LagBound:
+    """The bound of a fixed-lag smoother that lets a frame go ``lag_frames`` frames later.
+
+    Args:
+        simulation, noise_px, theta0_sigma, max_track_frames: as :func:`fisher_information`.
+        lag_frames: the smoother's lag in frames (lag in seconds times the frame rate).
+        step: sample every ``step``-th frame (each sample builds and factors one information
+            matrix, so the cost is that of :func:`sequence_bound` per sample).
+
+    Returns:
+        The bound at frames ``0, step, 2 step, ...``.
+    """
+    if lag_frames < 0 or step < 1:
+        raise ValueError(f"lag_frames = {lag_frames!r}, step = {step!r}: expected "
+                         "lag_frames >= 0 and step >= 1")
+    n_frames, S = simulation.sequence.n_frames, simulation.sequence.n_segments
+    frames = np.arange(0, n_frames, step, dtype=np.int64)
+    sigmas = np.full((len(frames), S), np.inf)
+    for i, f in enumerate(frames.tolist()):
+        last = min(f + lag_frames, n_frames - 1)
+        info = fisher_information(simulation, noise_px, theta0_sigma, max_track_frames,
+                                  last_frame=last)[:(last + 1) * S, :(last + 1) * S]
+        try:
+            U = scipy.linalg.cholesky(info, lower=False, check_finite=False)
+        except np.linalg.LinAlgError:
+            continue  # undetermined at this cut: inf
+        # The f block of info^-1 = U^-1 U^-T: rows f S.. of U^-1 come from solving U^T x = e.
+        unit = np.zeros((len(info), S))
+        unit[f * S + np.arange(S), np.arange(S)] = 1.0
+        x = scipy.linalg.solve_triangular(U, unit, trans="T", check_finite=False)
+        sigmas[i] = np.sqrt(np.einsum("ij,ij->j", x, x))
+    return LagBound(frames, sigmas, int(lag_frames))

@@ -18,7 +18,11 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.kinematics import apcc_transform, apcc_transform_derivative
+from apcc_graph.kinematics import (
+    apcc_transform,
+    apcc_transform_calibration_derivative,
+    apcc_transform_derivative,
+)
 from apcc_graph.segment import Segment
 
 FloatArray = NDArray[np.float64]
@@ -31,7 +35,8 @@ def camera_poses(
     world_T_base: ArrayLike | None = None,
     psis: ArrayLike | None = None,
     derivatives: bool = True,
-) -> tuple[FloatArray, FloatArray | None]:
+    calibration: bool = False,
+) -> tuple[FloatArray, FloatArray | None] | tuple[FloatArray, FloatArray, FloatArray]:
     """``world_T_cam`` of a camera on the last of ``segments``, for every frame.
 
     Args:
@@ -41,10 +46,13 @@ def camera_poses(
         world_T_base: ``(F, 4, 4)`` or ``(4, 4)`` robot base poses; ``None`` for identity.
         psis: ``(F, n)`` bending-plane angles (radians); ``None`` for a planar robot.
         derivatives: also return the derivatives.
+        calibration: also return the derivatives in each segment's ``k`` and ``delta_max``
+            (implies ``derivatives``).
 
     Returns:
         ``poses`` ``(F, 4, 4)`` and, with ``derivatives``, ``d poses`` ``(F, n, 4, 4)``:
-        ``d world_T_cam(f) / d theta_fj``; otherwise ``None``.
+        ``d world_T_cam(f) / d theta_fj``; otherwise ``None``. With ``calibration`` a third
+        array ``(F, n, 2, 4, 4)``: ``d world_T_cam(f) / d (k_j, delta_max_j)``.
     """
     thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
     n_frames, n = thetas.shape
@@ -59,7 +67,7 @@ def camera_poses(
     for j in range(n):
         prefix.append(prefix[-1] @ T[j])
     poses = prefix[n] @ M
-    if not derivatives:
+    if not (derivatives or calibration):
         return poses, None
     suffix = [np.broadcast_to(M, (n_frames, 4, 4))]
     for j in range(n - 1, 0, -1):
@@ -69,4 +77,11 @@ def camera_poses(
     for j, s in enumerate(segments):
         dT = apcc_transform_derivative(thetas[:, j], s, psis[:, j])[0]
         d_poses[:, j] = prefix[j] @ dT @ suffix[j]
-    return poses, d_poses
+    if not calibration:
+        return poses, d_poses
+    d_cal = np.empty((n_frames, n, 2, 4, 4))
+    for j, s in enumerate(segments):
+        for i, dT in enumerate(apcc_transform_calibration_derivative(thetas[:, j], s,
+                                                                      psis[:, j])):
+            d_cal[:, j, i] = prefix[j] @ dT @ suffix[j]
+    return poses, d_poses, d_cal

@@ -25,6 +25,11 @@ row carries the rest of the cost, so ``|A dx + e|^2`` is the factor's Gauss-Newt
 ``|e|^2`` its cost. One Python callback per chunk and linearisation, vectorised over the chunk's
 observations (Python factors run serially).
 
+Self-calibration: with calibration keys, the factor also depends on one ``Vector2`` per segment
+``0..c``, that segment's ``(k, delta_max)`` (key :func:`calibration_key`); its columns come after
+the frames' in ``H`` and ``g``, and the segments' values are read from those variables (clamped
+to their valid range) instead of the chain's.
+
 Jacobian convention: the tangent space of a ``Vector`` is the identity (``x + dx``).
 """
 
@@ -54,6 +59,24 @@ FloatArray = NDArray[np.float64]
 def frame_key(frame: int) -> int:
     """The graph key of frame ``frame``'s angles (a ``Vector(S)``)."""
     return int(gtsam.symbol("x", frame))
+
+
+def calibration_key(segment: int) -> int:
+    """The graph key of segment ``segment``'s ``(k, delta_max)`` (a ``Vector2``; radians for
+    ``delta_max``) when self-calibrating."""
+    return int(gtsam.symbol("c", segment))
+
+
+K_MARGIN = 1e-3
+"""How close to its open range ``(0, 0.5)`` a calibrated ``k`` may come."""
+
+
+def calibrated(segment: Segment, k: float, delta_max: float) -> Segment:
+    """``segment`` with ``k`` and ``delta_max`` replaced, clamped into their valid ranges
+    (``K_MARGIN <= k <= 0.5 - K_MARGIN``, ``|delta_max| <= 0.999 theta_max``)."""
+    k = min(max(float(k), K_MARGIN), 0.5 - K_MARGIN)
+    lim = 0.999 * segment.theta_max
+    return Segment(segment.length, k, min(max(float(delta_max), -lim), lim), segment.theta_max)
 
 
 @dataclass(frozen=True)
@@ -87,26 +110,40 @@ class CameraChain:
     psis: FloatArray | None  # (F, S) bending-plane angles of frames frame0.., or None
     frame0: int = 0  # the frame of world_T_base[0] and psis[0]
 
-    def poses(self, thetas: FloatArray, first: int,
-              derivatives: bool) -> tuple[FloatArray, FloatArray | None]:
-        """Poses (and derivatives) of frames ``first .. first + len(thetas) - 1``."""
+    def poses(self, thetas: FloatArray, first: int, derivatives: bool,
+              calibration: bool = False) -> tuple:
+        """Poses (and derivatives) of frames ``first .. first + len(thetas) - 1``; see
+        :func:`factors.camera_chain.camera_poses`."""
         n = len(self.segments)
         rows = slice(first - self.frame0, first - self.frame0 + len(thetas))
         base = None if self.world_T_base is None else self.world_T_base[rows]
         psis = None if self.psis is None else self.psis[rows, :n]
         return camera_poses(thetas[:, :n], self.segments, self.tip_T_cam, base, psis,
-                            derivatives)
+                            derivatives, calibration)
+
+    def with_segments(self, segments: Sequence[Segment]) -> CameraChain:
+        """The same chain with other segment models (self-calibration)."""
+        return CameraChain(tuple(segments), self.tip_T_cam, self.world_T_base, self.psis,
+                           self.frame0)
 
 
 def _row_poses(chain: CameraChain, thetas: FloatArray, first: int, frames: NDArray[np.int64],
-               derivatives: bool) -> tuple[FloatArray, FloatArray, FloatArray | None]:
-    """Row-last camera orientation ``(3, 3, N)``, position ``(3, N)`` and pose derivatives
-    ``(4, 4, n, N)`` of each row's frame."""
-    poses, d_poses = chain.poses(thetas, first, derivatives)
+               derivatives: bool, calibration: bool = False
+               ) -> tuple[FloatArray, FloatArray, FloatArray | None, FloatArray | None]:
+    """Row-last camera orientation ``(3, 3, N)``, position ``(3, N)``, pose derivatives
+    ``(4, 4, n, N)`` of each row's frame and, with ``calibration``, their derivatives in
+    ``(k_0, delta_0, k_1, ...)``, ``(4, 4, 2 n, N)``."""
+    out = chain.poses(thetas, first, derivatives, calibration)
+    poses, d_poses = out[0], out[1]
     lf = frames - first
     P = np.moveaxis(poses, 0, -1)[:, :, lf]
     dP = None if d_poses is None else np.moveaxis(d_poses, (0, 1), (-1, -2))[..., lf]
-    return np.ascontiguousarray(P[:3, :3]), np.ascontiguousarray(P[:3, 3]), dP
+    dC = None
+    if calibration:
+        d_cal = out[2]
+        F, n = d_cal.shape[:2]
+        dC = np.moveaxis(d_cal.reshape(F, 2 * n, 4, 4), (0, 1), (-1, -2))[..., lf]
+    return np.ascontiguousarray(P[:3, :3]), np.ascontiguousarray(P[:3, 3]), dP, dC
 
 
 def residual_norms(obs: TrackObservations, chain: CameraChain, thetas: FloatArray, first: int,
@@ -122,7 +159,7 @@ def residual_norms(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
         weights: ``(N,)`` row weights used to triangulate.
         points: starting points (previous solution) or ``None``.
     """
-    Rb, ob, _ = _row_poses(chain, thetas, first, obs.frames, False)
+    Rb, ob, _, _ = _row_poses(chain, thetas, first, obs.frames, False)
     pts = triangulate_rows(obs, Rb, ob, weights, None if points is None else
                        np.ascontiguousarray(points.T))
     proj = project_rows(obs, Rb, ob, pts[:, obs.tracks])
@@ -135,14 +172,15 @@ def robust_residual_norms(obs: TrackObservations, chain: CameraChain, thetas: Fl
     """Like :func:`residual_norms`, but each track's point is found robustly from scratch
     (:func:`factors.track_points.robust_triangulate`): the outlier decisions of a new
     estimate start here."""
-    Rb, ob, _ = _row_poses(chain, thetas, first, obs.frames, False)
+    Rb, ob, _, _ = _row_poses(chain, thetas, first, obs.frames, False)
     points, norms = robust_triangulate(obs, np.moveaxis(Rb, -1, 0), ob.T, weights)
     return norms, points
 
 
 def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArray, first: int,
                    weights: FloatArray, points: FloatArray | None = None,
-                   jacobians: bool = True, refine_points: bool = True) -> ReducedSystem:
+                   jacobians: bool = True, refine_points: bool = True,
+                   calibration: bool = False) -> ReducedSystem:
     """The chunk's reduced Gauss-Newton system (see the module docstring).
 
     Args:
@@ -156,10 +194,13 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
             computed).
         refine_points: triangulate (default); ``False`` uses ``points`` as they are (the
             Fisher information at known points, for the Cramer-Rao bound).
+        calibration: add the ``2 n`` columns of the chain's segments' ``(k, delta_max)``
+            after the frames' (``D = frames x n + 2 n``).
     """
     n = len(chain.segments)
     n_frames = len(thetas)
-    Rb, ob, dP = _row_poses(chain, thetas, first, obs.frames, jacobians)
+    Rb, ob, dP, dC = _row_poses(chain, thetas, first, obs.frames, jacobians,
+                                jacobians and calibration)
     pts = None if points is None else np.ascontiguousarray(points.T)
     if refine_points or pts is None:
         pts = triangulate_rows(obs, Rb, ob, weights, pts)
@@ -182,13 +223,27 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
     # Frame blocks of sum_k Jt^T Jt and sum_k Jt^T r.
     Hk = np.einsum("ain,ajn->ijn", Jt, Jt).reshape(n * n, -1)
     gk = np.einsum("ain,an->in", Jt, r)
-    D = n_frames * n
+    D0 = n_frames * n
+    D = D0 + (2 * n if calibration else 0)
     H = np.zeros((D, D))
     diag = np.arange(n_frames) * n
     for i in range(n):
         for j in range(n):
             H[diag + i, diag + j] = np.bincount(lf, Hk[i * n + j], n_frames)
-    g = np.stack([np.bincount(lf, gk[c], n_frames) for c in range(n)], axis=1).ravel()
+    g = np.zeros(D)
+    g[:D0] = np.stack([np.bincount(lf, gk[c], n_frames) for c in range(n)], axis=1).ravel()
+    if calibration:
+        assert dC is not None
+        dqc = (np.einsum("bijn,bn->ijn", dC[:3, :3], proj.d)
+               - np.einsum("bin,bjn->ijn", Rb, dC[:3, 3]))
+        Jc = np.einsum("ain,ijn->ajn", WA, dqc)  # (2, 2n, N)
+        cross = np.einsum("ain,acn->icn", Jt, Jc)  # (n, 2n, N)
+        for i in range(n):
+            for c in range(2 * n):
+                H[diag + i, D0 + c] = np.bincount(lf, cross[i, c], n_frames)
+        H[D0:, :D0] = H[:D0, D0:].T
+        H[D0:, D0:] = np.einsum("acn,adn->cd", Jc, Jc)
+        g[D0:] = np.einsum("acn,an->c", Jc, r)
 
     # Schur complement of the points: with C_t = L_t L_t^T, V_k = B_k L_t^-T and
     # y_t = L_t^-1 b_t, the correction is -V V^T and the gradient's -V y.
@@ -203,6 +258,10 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
     rows = (lf * n)[None, None, :] + np.arange(n)[:, None, None]
     cols = (3 * obs.tracks)[None, None, :] + np.arange(3)[None, :, None]
     M[rows, cols] = V
+    if calibration:
+        L_inv_rows = np.moveaxis(L_inv, 0, -1)[:, :, obs.tracks]
+        Vc = np.einsum("can,ban->cbn", np.einsum("acn,ajn->cjn", Jc, Jp), L_inv_rows)
+        M[D0:] = np.moveaxis(segment_sum(Vc, obs.starts), -1, 1).reshape(2 * n, -1)
     H -= M @ M.T
     g -= M @ y.ravel()
     return ReducedSystem(H, g, float(np.sum(r * r)), pts.T.copy(), norms)
@@ -244,13 +303,16 @@ class ProjectionFactor:
         n_segments: S, the dimension of each frame's angle vector.
         weights: ``(N,)`` row weights; the array is used in place, so an estimator can
             update the robust decisions between solves.
+        calibrate: also depend on the ``(k, delta_max)`` variables (:func:`calibration_key`)
+            of the chain's segments, whose values then replace the chain's.
 
-    The frames spanned are ``first .. last``; the factor's keys are their :func:`frame_key`.
-    The latest points are kept and start the next triangulation.
+    The frames spanned are ``first .. last``; the factor's keys are their :func:`frame_key`,
+    then (with ``calibrate``) the calibration keys of segments ``0..c``. The latest points are
+    kept and start the next triangulation.
     """
 
     def __init__(self, obs: TrackObservations, chain: CameraChain, n_segments: int,
-                 weights: FloatArray | None = None) -> None:
+                 weights: FloatArray | None = None, calibrate: bool = False) -> None:
         if len(obs) == 0:
             raise ValueError("a projection factor needs at least one observation")
         self.obs, self.chain, self.n_segments = obs, chain, n_segments
@@ -258,31 +320,48 @@ class ProjectionFactor:
         self.first = int(obs.frames.min())
         self.last = int(obs.frames.max())
         self.frames = np.arange(self.first, self.last + 1)
-        self.keys = [frame_key(int(f)) for f in self.frames]
+        self.n = len(chain.segments)
+        self.calibrate = bool(calibrate)
+        self.frame_keys = [frame_key(int(f)) for f in self.frames]
+        self.calibration_keys = ([calibration_key(j) for j in range(self.n)]
+                                 if self.calibrate else [])
+        self.keys = self.frame_keys + self.calibration_keys
         self.points: FloatArray | None = None
         self.norms: FloatArray | None = None  # residual norms of the last evaluation
-        self.n = len(chain.segments)
-        self.dim = len(self.frames) * self.n + 1
+        self.dim = len(self.frames) * self.n + (2 * self.n if self.calibrate else 0) + 1
 
     def thetas(self, values: gtsam.Values) -> FloatArray:
         """``(F', S)`` the chunk's angles in ``values``."""
-        return np.array([values.atVector(k) for k in self.keys])
+        return np.array([values.atVector(k) for k in self.frame_keys])
 
-    def system(self, thetas: FloatArray, jacobians: bool = True) -> ReducedSystem:
-        """The reduced system at ``thetas`` (and remember the points)."""
-        out = reduced_system(self.obs, self.chain, thetas, self.first, self.weights,
-                             self.points, jacobians)
+    def chain_at(self, values: gtsam.Values | None) -> CameraChain:
+        """The chain, with the calibration variables' segment models when calibrating."""
+        if not self.calibrate or values is None:
+            return self.chain
+        return self.chain.with_segments([
+            calibrated(seg, *values.atVector(key))
+            for seg, key in zip(self.chain.segments, self.calibration_keys, strict=True)])
+
+    def system(self, thetas: FloatArray, jacobians: bool = True,
+               chain: CameraChain | None = None) -> ReducedSystem:
+        """The reduced system at ``thetas`` (and remember the points); ``chain`` overrides the
+        factor's (calibrated segments)."""
+        out = reduced_system(self.obs, self.chain if chain is None else chain, thetas,
+                             self.first, self.weights, self.points, jacobians,
+                             calibration=self.calibrate and jacobians)
         self.points, self.norms = out.points, out.residuals
         return out
 
-    def residual_norms(self, thetas: FloatArray, robust: bool = False) -> FloatArray:
+    def residual_norms(self, thetas: FloatArray, robust: bool = False,
+                       chain: CameraChain | None = None) -> FloatArray:
         """Whitened residual norms of every row at ``thetas`` (for robust decisions); with
         ``robust``, each track's point is found afresh, robustly, ignoring the weights."""
+        chain = self.chain if chain is None else chain
         if robust:
-            norms, self.points = robust_residual_norms(self.obs, self.chain, thetas, self.first,
+            norms, self.points = robust_residual_norms(self.obs, chain, thetas, self.first,
                                                        np.ones(len(self.obs)))
         else:
-            norms, self.points = residual_norms(self.obs, self.chain, thetas, self.first,
+            norms, self.points = residual_norms(self.obs, chain, thetas, self.first,
                                                 self.weights, self.points)
         return norms
 
@@ -290,17 +369,20 @@ class ProjectionFactor:
                    H: list[np.ndarray] | None) -> np.ndarray:
         """gtsam's callback: compressed error and, when asked, the Jacobian blocks."""
         thetas = self.thetas(values)
-        out = self.system(thetas, jacobians=H is not None)
+        out = self.system(thetas, jacobians=H is not None, chain=self.chain_at(values))
         if H is None:
             e = np.zeros(self.dim)
             e[-1] = np.sqrt(out.cost)
             return e
         A, e = compress(out.H, out.g, out.cost)
         n, S = self.n, self.n_segments
-        for i in range(len(self.keys)):
+        for i in range(len(self.frame_keys)):
             block = np.zeros((self.dim, S), order="F")
             block[:, :n] = A[:, i * n:(i + 1) * n]
             H[i] = block
+        D0 = len(self.frame_keys) * n
+        for j in range(len(self.calibration_keys)):
+            H[len(self.frame_keys) + j] = np.asfortranarray(A[:, D0 + 2 * j:D0 + 2 * j + 2])
         return e
 
     def factor(self) -> gtsam.CustomFactor:

@@ -351,7 +351,7 @@ def triangulate(
 
 def triangulate_rows(obs: TrackObservations, Rb: FloatArray, ob: FloatArray, weights: FloatArray,
                  points: FloatArray | None, iterations: int = 10,
-                 tolerance: float = 1e-7) -> FloatArray:
+                 tolerance: float = 1e-6) -> FloatArray:
     """:func:`triangulate`, row-last: ``Rb`` ``(3, 3, N)``, ``ob`` ``(3, N)``, points
     ``(3, T)`` in and out."""
     starts, tracks = obs.starts, obs.tracks
@@ -405,11 +405,14 @@ def triangulate_rows(obs: TrackObservations, Rb: FloatArray, ob: FloatArray, wei
             step[:2, low] = -np.linalg.solve(At[low][:, :2, :2], rhs.T[..., None])[..., 0].T
             step[2, low] = d_rho
         trial = params + step
-        new_cost, _, _, _ = evaluate(trial, False)
+        new_cost, new_p, _, _ = evaluate(trial, False)
         better = new_cost <= cost
         params = np.where(better, trial, params)
+        p = np.where(better, new_p, p)
+        cost = np.where(better, new_cost, cost)
         lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-9, 1e9)
-        cost, p, N, g = evaluate(params, True)
         if np.max(np.abs(step), initial=0.0) < tolerance:
             break
+        if better.any():  # a rejected step leaves that track's system as it was
+            cost, p, N, g = evaluate(params, True)
     return p

@@ -21,6 +21,7 @@ from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import CameraTerms
 from apcc_graph.estimation.robust import gnc_schedule
 from apcc_graph.robot import Robot, load_robot
+from apcc_graph.segment import Segment
 from apcc_graph.sequence import Sequence, Tracks
 from apcc_graph.sequence_bound import sequence_bound
 from apcc_graph.simulate import Simulation, simulate
@@ -178,8 +179,8 @@ def test_outlier_decisions_match_the_simulated_outliers(
 
     original = batch_module.build_terms
     monkeypatch.setattr(batch_module, "build_terms", build_terms)
-    _, _, inliers, report = projection_solve(seq, seq.thetas, seq.thetas[0], options,
-                                             marginals=False)
+    found = projection_solve(seq, seq.thetas, seq.thetas[0], options, marginals=False)
+    inliers, report = found.inliers, found.report
     assert len(built) == 1
     decided, true = [], []
     for terms in built[0]:
@@ -224,3 +225,56 @@ def test_bad_vision_and_schedule_are_refused(robot: Robot) -> None:
             batch_estimate(seq, theta0=seq.thetas[0], initial=seq.thetas, schedule=schedule)
     with pytest.raises(ValueError, match="'bogus'"):
         batch_estimate(seq, theta0=seq.thetas[0], init="bogus")
+
+
+# ---------------------------------------------------------------------- self-calibration
+def _wrong_models(seq: Sequence, dk: float = 0.03, dd_deg: float = 3.0) -> Sequence:
+    """The sequence with every segment's k off by ``dk`` and delta_max off by ``dd_deg``."""
+    robot = Robot([Segment(s.length, s.k + dk, s.delta_max + math.radians(dd_deg), s.theta_max)
+                   for s in seq.robot.segments], seq.robot.cameras)
+    return Sequence(robot, seq.timestamps, seq.tracks, seq.world_T_base, seq.thetas, seq.psis)
+
+
+def test_noise_free_self_calibration_returns_the_true_models(robot: Robot) -> None:
+    """Wrong k and delta_max on every segment, noise-free pixels, loose calibration priors:
+    the angles and the models come back (the priors' pull is ~1e-6 here); without
+    calibration the same start stays degrees off."""
+    sim = room(robot, 40, seed=2, noise_px=0.0, moving_base=True)
+    seq = _wrong_models(sim.sequence)
+    options = GraphOptions(motion_sigma=None, theta0_sigma=1e-9)  # no prior pulls the truth
+    fixed = batch_estimate(seq, theta0=sim.sequence.thetas[0], initial=sim.sequence.thetas,
+                           options=options, marginals=False)
+    assert np.abs(fixed.thetas - sim.sequence.thetas).max() > math.radians(0.2)
+    est = batch_estimate(seq, theta0=sim.sequence.thetas[0], initial=sim.sequence.thetas,
+                         options=options, calibrate=True, calibration_sigmas=(10.0, 10.0))
+    assert np.abs(est.thetas - sim.sequence.thetas).max() < 1e-5
+    found = np.array([[s.k, s.delta_max] for s in est.robot.segments])
+    truth = np.array([[s.k, s.delta_max] for s in robot.segments])
+    np.testing.assert_allclose(found, truth, rtol=0, atol=1e-5)
+    assert est.calibration_sigmas.shape == (3, 2)
+    assert np.all(np.isfinite(est.calibration_sigmas))
+
+
+def test_self_calibration_sigmas_are_the_bound_of_the_models(robot: Robot) -> None:
+    """On a noisy sequence the batch's calibration sigmas equal the Cramer-Rao bound of k and
+    delta_max (same information, evaluated at the solution instead of the truth), and the
+    angle sigmas the bound with unknown models."""
+    sim = room(robot, 120, seed=5)
+    seq = _wrong_models(sim.sequence)
+    sigmas = (0.05, math.radians(5.0))
+    est = batch_estimate(seq, theta0=sim.sequence.thetas[0], initial=sim.sequence.thetas,
+                         calibrate=True, calibration_sigmas=sigmas)
+    bound = sequence_bound(sim, 1.0, PRIOR, max_track_frames=TRACK_FRAMES,
+                           calibration_sigmas=sigmas)
+    np.testing.assert_allclose(est.calibration_sigmas, bound.calibration, rtol=0.1)
+    np.testing.assert_allclose(rms(est.sigmas), bound.rms(), rtol=0.1)
+    # Within a few sigmas of the true models.
+    found = np.array([[s.k, s.delta_max] for s in est.robot.segments])
+    truth = np.array([[s.k, s.delta_max] for s in robot.segments])
+    assert np.all(np.abs(found - truth) < 4.0 * est.calibration_sigmas)
+
+
+def test_calibration_needs_the_projection_model(robot: Robot) -> None:
+    seq = room(robot, 10, seed=1).sequence
+    with pytest.raises(ValueError, match="projection model"):
+        batch_estimate(seq, options=GraphOptions(vision="epipolar"), calibrate=True)

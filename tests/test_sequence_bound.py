@@ -242,3 +242,84 @@ def test_rms_and_window_rms_by_hand() -> None:
     np.testing.assert_allclose(bound.window_rms(10), bound.rms()[None], rtol=1e-15)
     np.testing.assert_allclose(bound.window_rms(1), sigmas, rtol=1e-15)
     assert bound.window_rms().shape == (1, 3)
+
+
+# ------------------------------------------------------------------ unknown segment models
+def _robot_with(robot: Robot, cal: np.ndarray) -> Robot:
+    return Robot([Segment(s.length, k, d, s.theta_max)
+                  for s, (k, d) in zip(robot.segments, cal.reshape(-1, 2), strict=True)],
+                 robot.cameras)
+
+
+def test_calibration_information_is_the_dense_numerical_one(robot: Robot) -> None:
+    """The calibration rows and columns of the Fisher information against central differences
+    of the pixel predictions in each segment's (k, delta_max), points eliminated exactly."""
+    sim = simulate(robot, 8, noise_px=1.0, seed=3, scene="room", n_points=300,
+                   moving_base=True, spatial=True)
+    seq = sim.sequence
+    S, D0 = 3, 8 * 3
+    sigmas = (0.05, math.radians(5.0))
+    info = fisher_information(sim, 1.0, PRIOR, calibration_sigmas=sigmas)
+    assert info.shape == (D0 + 2 * S,) * 2
+    np.testing.assert_allclose(info[:D0, :D0], fisher_information(sim, 1.0, PRIOR),
+                               rtol=0, atol=1e-9 * np.abs(info).max())
+    # Dense: angle columns as in dense_fisher, plus calibration columns.
+    points = {c: sim.points_world[sim.landmarks[c]] for c in seq.tracks}
+    cal = np.array([[s.k, s.delta_max] for s in robot.segments]).ravel()
+    h = 1e-6
+    J = []
+    for f in range(8):
+        for j in range(S):
+            plus, minus = seq.thetas.copy(), seq.thetas.copy()
+            plus[f, j] += h
+            minus[f, j] -= h
+            J.append((_pixels(robot, sim, plus, points) - _pixels(robot, sim, minus, points))
+                     / (2 * h))
+    for c in range(2 * S):
+        plus, minus = cal.copy(), cal.copy()
+        plus[c] += h
+        minus[c] -= h
+        J.append((_pixels(_robot_with(robot, plus), sim, seq.thetas, points)
+                  - _pixels(_robot_with(robot, minus), sim, seq.thetas, points)) / (2 * h))
+    Ja = np.array(J).T
+    row_point, n_points = [], 0
+    for tracks in seq.tracks.values():
+        ids, index = np.unique(tracks.track_ids, return_inverse=True)
+        row_point.append(n_points + index)
+        n_points += len(ids)
+    row_point = np.repeat(np.concatenate(row_point), 2)
+    want = Ja.T @ Ja
+    for p in np.unique(row_point):  # eliminate each point: its projector, from its own rows
+        rows = row_point == p
+        Jp = np.zeros((rows.sum(), 3))
+        for a in range(3):
+            plus = {c: q.copy() for c, q in points.items()}
+            minus = {c: q.copy() for c, q in points.items()}
+            for c in points:
+                plus[c][:, a] += h
+                minus[c][:, a] -= h
+            Jp[:, a] = ((_pixels(robot, sim, seq.thetas, plus)
+                         - _pixels(robot, sim, seq.thetas, minus)) / (2 * h))[rows]
+        U, s, _ = np.linalg.svd(Jp, full_matrices=False)
+        QJ = U[:, s > 1e-9 * s.max()].T @ Ja[rows]
+        want -= QJ.T @ QJ
+    want[np.arange(S), np.arange(S)] += 1.0 / PRIOR**2
+    want[D0 + np.arange(2 * S), D0 + np.arange(2 * S)] += np.tile(
+        1.0 / np.asarray(sigmas) ** 2, S)
+    np.testing.assert_allclose(info, want, rtol=0, atol=1e-5 * np.abs(want).max())
+
+
+def test_unknown_segment_models_raise_the_bound(robot: Robot) -> None:
+    sim = simulate(robot, 30, noise_px=1.0, seed=6, scene="room", n_points=400)
+    known = sequence_bound(sim, 1.0, PRIOR)
+    assert known.calibration is None
+    sigmas = (0.05, math.radians(5.0))
+    unknown = sequence_bound(sim, 1.0, PRIOR, calibration_sigmas=sigmas)
+    assert unknown.calibration.shape == (3, 2)
+    assert np.all(unknown.sigmas >= known.sigmas * (1 - 1e-9))
+    assert np.any(unknown.sigmas > 1.05 * known.sigmas)
+    # The data add to the priors: each calibration bound is below its prior.
+    assert np.all(unknown.calibration < np.array(sigmas) * (1 + 1e-9))
+    # A tight prior on the models gives back the known-model bound.
+    tight = sequence_bound(sim, 1.0, PRIOR, calibration_sigmas=(1e-9, 1e-9))
+    np.testing.assert_allclose(tight.sigmas, known.sigmas, rtol=1e-4)

@@ -499,8 +499,9 @@ def test_frames_without_bearings_match_the_precomputed_ones(seq30: Sequence) -> 
 # ------------------------------------------------------------------- 11. the batch backend
 def test_batch_backend_agrees_with_the_incremental_one(seq30: Sequence) -> None:
     # The iterated update swaps factors by their iSAM2 index: iSAM2 only. Compare one-shot.
-    incremental = smoother_estimate(seq30, theta0=seq30.thetas[0], iterations=1)
-    batch = smoother_estimate(seq30, theta0=seq30.thetas[0], backend="batch")
+    incremental = smoother_estimate(seq30, theta0=seq30.thetas[0], iterations=1,
+                                    vision="epipolar")
+    batch = smoother_estimate(seq30, theta0=seq30.thetas[0], backend="batch", vision="epipolar")
     assert np.all(np.isfinite(batch.thetas))
     assert np.all(np.isnan(batch.sigmas))  # BatchFixedLagSmoother has no marginals
     # First-estimate factors make the window a linear least-squares problem: iSAM2 and

@@ -9,17 +9,20 @@ exactly there). Every figure is measured here, in the same run:
 - the Cramer-Rao bound of each sequence (:mod:`apcc_graph.sequence_bound`: every observation
   once, each track's point a nuisance, 0.1 deg start prior), per segment and per 100-frame
   window;
+- the bound of a fixed-lag smoother (:func:`apcc_graph.sequence_bound.lag_bound`): a smoother
+  lets frame f go after frame f + lag, so no later observation can inform its final
+  estimate; sampled every 30 frames, beside the smoothers;
 - accuracy: RMS error per segment of the paper's chain, the fixed-lag smoother (lag 1 s,
-  epipolar: the default), the batch (projection model) and the experimental projection
-  smoother, each beside the bound of the same sequence: median over seeds of RMS / bound, the
-  worst seed, and the worst 100-frame window; sigma honesty, the mean of
-  ``(error / sigma)^2`` per segment, where the method reports sigmas;
+  projection model: the default), the batch (projection model) and the epipolar smoother,
+  each beside the bound of the same sequence: median over seeds of RMS / bound, the worst
+  seed, and the worst 100-frame window; for the smoothers also RMS / the lag bound; sigma
+  honesty, the mean of ``(error / sigma)^2`` per segment, where the method reports sigmas;
 - drift over ``long_frames`` frames: the default smoother's RMS over frames 100-400 and the
   last 300;
-- speed: ``FixedLagSmoother.update`` per frame (median, 95th percentile, 3 cameras, lag 1 s)
-  and the batch's seconds;
+- speed: the default smoother's ``update`` per frame (median, 95th percentile, 3 cameras,
+  lag 1 s) and the batch's seconds;
 - memory: resident set size after 1,000 and after ``memory_frames`` frames of a stream whose
-  finished frames are taken out (:meth:`FixedLagSmoother.pop_final`).
+  finished frames are taken out (``pop_final``).
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.robot import Robot, load_robot
 from apcc_graph.sequence import Sequence
-from apcc_graph.sequence_bound import sequence_bound
+from apcc_graph.sequence_bound import lag_bound, sequence_bound
 from apcc_graph.simulate import Simulation, simulate
 
 ROBOT_FILE = Path(__file__).resolve().parents[2] / "data" / "robots" / "planar_three.toml"
@@ -52,7 +55,9 @@ NOISE_PX = 1.0
 THETA0_SIGMA = math.radians(0.1)
 WINDOW = 100
 EPIPOLAR = GraphOptions(vision="epipolar", theta0_sigma=THETA0_SIGMA)
-METHODS = ("chain", "smoother", "batch", "projection smoother")
+LAG_STEP = 30
+METHODS = ("chain", "smoother", "batch", "epipolar smoother")
+SMOOTHERS = ("smoother", "epipolar smoother")
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,8 @@ class Run:
     window_bound: np.ndarray  # (W, S)
     seconds: float
     nees: np.ndarray | None = None  # (S,) mean (error / sigma)^2, where sigmas exist
+    lag_ratio: np.ndarray | None = None  # (S,) RMS / lag bound at the sampled frames
+    lag_window: np.ndarray | None = None  # (S,) worst window of that
 
     @property
     def ratio(self) -> np.ndarray:
@@ -141,15 +148,15 @@ def _estimators(sim: Simulation, methods: SequenceOf[str], progress: bool
         start = time.perf_counter()
         if method == "chain":
             thetas, sigmas = chain_estimate(seq, theta0=theta0, progress=progress).thetas, None
-        elif method == "smoother":
+        elif method == "epipolar smoother":
             sm = FixedLagSmoother(seq.robot, lag=LAG, theta0=theta0, options=EPIPOLAR)
-            thetas, sigmas, _ = _stream(sm, seq, progress, "smoother")
+            thetas, sigmas, _ = _stream(sm, seq, progress, "epipolar smoother")
         elif method == "batch":
             est = batch_estimate(seq, theta0=theta0, progress=progress)
             thetas, sigmas = est.thetas, est.sigmas
-        elif method == "projection smoother":
+        elif method == "smoother":
             ps = ProjectionFixedLagSmoother(seq.robot, lag=LAG, theta0=theta0)
-            thetas, sigmas, _ = _stream(ps, seq, progress, "projection smoother")
+            thetas, sigmas, _ = _stream(ps, seq, progress, "smoother")
         else:
             raise ValueError(f"method {method!r}: expected one of {METHODS}")
         out[method] = (thetas, sigmas, time.perf_counter() - start)
@@ -177,23 +184,34 @@ def run_smoother_benchmark(
             assert seq.thetas is not None
             tracks.append(np.mean([len(seq.tracks[c]) / frames for c in seq.tracks]))
             bound = sequence_bound(sim, NOISE_PX, THETA0_SIGMA)
+            lagged = (lag_bound(sim, NOISE_PX, round(LAG * FPS), THETA0_SIGMA, LAG_STEP)
+                      if any(m in SMOOTHERS for m in methods) else None)
             for method, (thetas, sigmas, seconds) in _estimators(sim, methods,
                                                                  progress).items():
                 err = thetas - seq.thetas
                 nees = None
                 if sigmas is not None and np.all(np.isfinite(sigmas)):
                     nees = np.mean((err / sigmas) ** 2, axis=0)
+                lag_ratio = lag_window = None
+                if lagged is not None and method in SMOOTHERS:
+                    sampled = err[lagged.frames]
+                    lag_ratio = np.sqrt(np.mean(sampled**2, axis=0)) / lagged.rms()
+                    per = [np.sqrt(np.mean(sampled[(lagged.frames >= s)
+                                                   & (lagged.frames < s + WINDOW)] ** 2,
+                                           axis=0))
+                           for s in range(0, frames, WINDOW)]
+                    lag_window = np.max(np.array(per) / lagged.window_rms(WINDOW), axis=0)
                 runs.append(Run(case, seed, method, np.sqrt(np.mean(err**2, axis=0)),
                                 _window_rms(err), bound.rms(), bound.window_rms(WINDOW),
-                                seconds, nees))
+                                seconds, nees, lag_ratio, lag_window))
 
     # Drift and speed over a long run.
     early = late = median = p95 = float("nan")
     if long_frames:
         seq = _simulate(robot, long_frames, 0.1, seeds[0] + 100).sequence
         assert seq.thetas is not None
-        sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False,
-                              options=EPIPOLAR)
+        sm = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0],
+                                        uncertainty=False)
         thetas, _, times = _stream(sm, seq, progress, "long run")
         err = thetas - seq.thetas
         early = float(np.sqrt(np.mean(err[100:400] ** 2)))
@@ -205,8 +223,8 @@ def run_smoother_benchmark(
     if memory_frames:
         seq = _simulate(robot, memory_frames, 0.1, seeds[0] + 200).sequence
         assert seq.thetas is not None
-        sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False,
-                              options=EPIPOLAR)
+        sm = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0],
+                                        uncertainty=False)
         for f in tqdm(range(memory_frames), desc="memory", disable=not progress, leave=False):
             sm.update(seq.frame(f))
             sm.pop_final()
@@ -254,6 +272,20 @@ def format_smoother_benchmark(r: SmootherBenchmark) -> str:
             out.append(f"  {case:<13} {method:<18} {_cells(medians[case, method], '5.2f')}   "
                        f"{_cells(ratios.max(axis=0), '5.2f')}   {_cells(windows, '5.2f')}   "
                        f"{honesty}")
+    lagged = [run for run in r.runs if run.lag_ratio is not None]
+    if lagged:
+        out += ["", f"smoothers against the bound of a {LAG:g} s fixed lag (frames sampled every "
+                f"{LAG_STEP}; no estimate of frame f may use frames after f + lag): RMS / lag "
+                "bound (median, worst seed), worst window"]
+        for case in cases:
+            for method in SMOOTHERS:
+                rows = [run for run in lagged if run.case == case and run.method == method]
+                if not rows:
+                    continue
+                ratios = np.array([run.lag_ratio for run in rows])
+                windows = np.max([run.lag_window for run in rows], axis=0)
+                out.append(f"  {case:<13} {method:<18} {_cells(np.median(ratios, axis=0), '5.2f')}"
+                           f"   {_cells(ratios.max(axis=0), '5.2f')}   {_cells(windows, '5.2f')}")
     if len(cases) == 2:
         out += ["", f"{cases[1]} / {cases[0]}: median RMS per segment"]
         for method in methods:
@@ -267,7 +299,7 @@ def format_smoother_benchmark(r: SmootherBenchmark) -> str:
                 "segments (deg)",
                 f"  frames 100-400 {deg(r.drift_early):.3f}; last 300 {deg(r.drift_late):.3f}; "
                 f"late / early {r.drift_late / r.drift_early:.2f}",
-                "", "speed: FixedLagSmoother.update per frame, 3 cameras, lag 1 s",
+                "", "speed: the smoother's update per frame, 3 cameras, lag 1 s",
                 f"  median {r.update_median * 1e3:.2f} ms, 95th percentile "
                 f"{r.update_p95 * 1e3:.2f} ms ({1.0 / FPS / r.update_median:.2f}x real time)"]
     batch = [run.seconds for run in r.runs if run.method == "batch"]

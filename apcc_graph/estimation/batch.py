@@ -30,6 +30,7 @@ from tqdm import tqdm
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import (
     CameraTerms,
+    calibration_factors,
     camera_chain,
     camera_observations,
     frame_key,
@@ -40,7 +41,10 @@ from apcc_graph.estimation.graph import (
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.robust import gnc_start
+from apcc_graph.robot import Robot
+from apcc_graph.segment import Segment
 from apcc_graph.sequence import Sequence
+from factors.projection import calibrated, calibration_key
 
 FloatArray = NDArray[np.float64]
 INITS = ("smoother", "chain")
@@ -56,7 +60,8 @@ class BatchReport:
     observations: int
 
 
-def build_terms(sequence: Sequence, options: GraphOptions) -> list[CameraTerms]:
+def build_terms(sequence: Sequence, options: GraphOptions,
+                calibrate: bool = False) -> list[CameraTerms]:
     """The projection terms of every camera of the sequence that has tracks."""
     terms = []
     for cam in sequence.robot.camera_segments:
@@ -65,61 +70,100 @@ def build_terms(sequence: Sequence, options: GraphOptions) -> list[CameraTerms]:
         if obs is None:
             continue
         chain = camera_chain(sequence.robot, cam, sequence.world_T_base, sequence.psis)
-        terms.append(CameraTerms(obs, chain, sequence.n_segments, options.frames_per_chunk))
+        terms.append(CameraTerms(obs, chain, sequence.n_segments, options.frames_per_chunk,
+                                 calibrate))
     return terms
 
 
+def _values_and_ordering(thetas: FloatArray, frames: SequenceOf[int],
+                         calibration: FloatArray | None
+                         ) -> tuple[gtsam.Values, gtsam.Ordering]:
+    """Values of the angles (and calibration); frames in time order (the graph is banded),
+    then the calibration variables, which every camera's factors share."""
+    values = values_from(thetas, frames)
+    ordering = gtsam.Ordering()
+    for f in frames:
+        ordering.push_back(frame_key(f))
+    if calibration is not None:
+        for j, kd in enumerate(calibration):
+            values.insert(calibration_key(j), np.asarray(kd, dtype=float))
+            ordering.push_back(calibration_key(j))
+    return values, ordering
+
+
 def optimise(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, frames: SequenceOf[int],
-             max_iterations: int, relative_tolerance: float = 1e-6) -> tuple[FloatArray, int]:
-    """Levenberg-Marquardt from ``thetas``; the optimised ``(F, S)`` angles and iterations."""
+             max_iterations: int, relative_tolerance: float = 1e-6,
+             calibration: FloatArray | None = None
+             ) -> tuple[FloatArray, int, FloatArray | None]:
+    """Levenberg-Marquardt from ``thetas`` (and ``calibration``, ``(S, 2)`` k and delta_max,
+    when self-calibrating); the optimised angles, iterations and calibration."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(relative_tolerance)
     params.setAbsoluteErrorTol(1e-9)
-    ordering = gtsam.Ordering()  # frames in time order: the graph is banded
-    for f in frames:
-        ordering.push_back(frame_key(f))
+    values, ordering = _values_and_ordering(thetas, frames, calibration)
     params.setOrdering(ordering)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values_from(thetas, frames), params)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = optimizer.optimize()
-    return thetas_from(result, frames), int(optimizer.iterations())
+    cal = (None if calibration is None else
+           np.array([result.atVector(calibration_key(j)) for j in range(len(calibration))]))
+    return thetas_from(result, frames), int(optimizer.iterations()), cal
 
 
 def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
-                    frames: SequenceOf[int], dense_limit: int = 6000) -> FloatArray:
-    """``(F, S)`` marginal standard deviations at ``thetas`` (NaN where undetermined).
+                    frames: SequenceOf[int], dense_limit: int = 6000,
+                    calibration: FloatArray | None = None) -> FloatArray:
+    """``(F, S)`` marginal standard deviations of the angles at ``thetas`` (NaN where
+    undetermined); see :func:`marginal_deviations`."""
+    return marginal_deviations(graph, thetas, frames, dense_limit, calibration)[0]
+
+
+def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, frames: SequenceOf[int],
+              dense_limit: int = 6000, calibration: FloatArray | None = None
+              ) -> tuple[FloatArray, FloatArray | None]:
+    """Marginal standard deviations at the solution: ``(F, S)`` angles and, when
+    self-calibrating, ``(S, 2)`` of each segment's k and delta_max (NaN where undetermined).
 
     Up to ``dense_limit`` angles, the information matrix of the graph linearised at
     ``thetas`` is inverted densely (600 frames of three segments: under a second, against 20 s
     for gtsam's per-variable ``marginalCovariance`` on this banded graph); beyond,
     ``gtsam.Marginals``.
     """
-    values = values_from(thetas, frames)
+    values, ordering = _values_and_ordering(thetas, frames, calibration)
+    n_cal = 0 if calibration is None else calibration.size
+    nan = (np.full(thetas.shape, np.nan),
+           None if calibration is None else np.full(calibration.shape, np.nan))
     if thetas.size <= dense_limit:
-        ordering = gtsam.Ordering()
-        for f in frames:
-            ordering.push_back(frame_key(f))
         info, _ = graph.linearize(values).hessian(ordering)
         try:
             L = np.linalg.cholesky(info)
         except np.linalg.LinAlgError:
-            return np.full(thetas.shape, np.nan)
+            return nan
         L_inv = scipy.linalg.solve_triangular(L, np.eye(len(info)), lower=True,
                                               check_finite=False)
-        return np.sqrt(np.einsum("ij,ij->j", L_inv, L_inv)).reshape(thetas.shape)
+        sig = np.sqrt(np.einsum("ij,ij->j", L_inv, L_inv))
+        cal = None if calibration is None else sig[thetas.size:].reshape(calibration.shape)
+        return sig[:thetas.size].reshape(thetas.shape), cal
     try:
-        marginals = gtsam.Marginals(graph, values)
+        found = gtsam.Marginals(graph, values)
     except RuntimeError:
-        return np.full(thetas.shape, np.nan)
-    return np.array([np.sqrt(np.maximum(np.diag(marginals.marginalCovariance(frame_key(f))),
-                                        0.0)) for f in frames])
+        return nan
+
+    def sigma(key: int) -> FloatArray:
+        return np.sqrt(np.maximum(np.diag(found.marginalCovariance(key)), 0.0))
+
+    cal = (None if n_cal == 0 else
+           np.array([sigma(calibration_key(j)) for j in range(len(calibration))]))
+    return np.array([sigma(frame_key(f)) for f in frames]), cal
 
 
 def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray,
                      options: GraphOptions, schedule: SequenceOf[float] | None = None,
                      max_iterations: int = 30, max_final_rounds: int = 4,
-                     marginals: bool = True, progress: bool = False
-                     ) -> tuple[FloatArray, FloatArray, NDArray[np.int64], BatchReport]:
+                     marginals: bool = True, progress: bool = False,
+                     calibrate: bool = False,
+                     calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0))
+                     ) -> ProjectionSolution:
     """Angles, sigmas and inliers per frame of the projection batch, started at ``initial``.
 
     Args:
@@ -134,20 +178,27 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         max_final_rounds: most repetitions of the last stage while decisions change.
         marginals: compute marginal sigmas (otherwise NaN).
         progress: show a progress bar over the stages.
+        calibrate: estimate each segment's k and delta_max too, with priors of
+            ``calibration_sigmas`` (k, radians) around the robot's values.
     """
     if schedule is not None:
         schedule = list(schedule)
         if not schedule or not math.isinf(schedule[-1]):
             raise ValueError(f"schedule = {schedule!r}: expected values ending with inf")
+    robot = sequence.robot
     frames = range(sequence.n_frames)
-    terms = build_terms(sequence, options)
+    terms = build_terms(sequence, options, calibrate)
     graph = gtsam.NonlinearFactorGraph()
-    for factor in prior_factors(frames, sequence.timestamps, theta0, sequence.robot, options):
+    for factor in prior_factors(frames, sequence.timestamps, theta0, robot, options):
         graph.add(factor)
+    if calibrate:
+        for factor in calibration_factors(robot, calibration_sigmas):
+            graph.add(factor)
     for t in terms:
         for factor in t.factors():
             graph.add(factor)
     thetas = np.array(initial, dtype=float)
+    cal = (np.array([[s.k, s.delta_max] for s in robot.segments]) if calibrate else None)
     for t in terms:
         t.measure(thetas, robust=True)
     if schedule is None:
@@ -158,25 +209,55 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     bar = tqdm(total=len(stages), desc="batch", disable=not progress, leave=False)
     for stage, mu in enumerate(stages):
         if stage > 0:
+            segments = None if cal is None else _segments(robot, cal)
             for t in terms:
-                t.measure(thetas)
+                t.measure(thetas, segments=segments)
         changed = sum(t.set_weights(options.inlier_sigmas, mu) for t in terms)
         if stage >= len(schedule) and changed == 0:
             break
         # Intermediate stages only lead the weights; the truncated quadratic is solved tightly.
         tolerance = 1e-6 if math.isinf(mu) else 1e-3
-        thetas, its = optimise(graph, thetas, frames, max_iterations, tolerance)
+        thetas, its, cal = optimise(graph, thetas, frames, max_iterations, tolerance, cal)
         iterations += its
         bar.update()
     bar.close()
-    sigmas = (marginal_sigmas(graph, thetas, frames) if marginals
-              else np.full(thetas.shape, np.nan))
+    if marginals:
+        sigmas, cal_sigmas = marginal_deviations(graph, thetas, frames, calibration=cal)
+    else:
+        sigmas = np.full(thetas.shape, np.nan)
+        cal_sigmas = None if cal is None else np.full(cal.shape, np.nan)
     inliers = np.zeros(thetas.shape, dtype=np.int64)
     for t in terms:
         inliers[:, t.camera] = t.inliers_per_frame(sequence.n_frames)
     report = BatchReport(stage + 1, iterations, sum(t.outlier_rows() for t in terms),
                          sum(len(c.obs) for t in terms for c in t.chunks))
-    return thetas, sigmas, inliers, report
+    segments = None if cal is None else _segments(robot, cal)
+    return ProjectionSolution(thetas, sigmas, inliers, report, segments, cal_sigmas)
+
+
+def _segments(robot: Robot, cal: FloatArray) -> tuple[Segment, ...]:
+    return tuple(calibrated(s, k, d) for s, (k, d) in zip(robot.segments, cal, strict=True))
+
+
+@dataclass(frozen=True)
+class ProjectionSolution:
+    """What :func:`projection_solve` found.
+
+    Attributes:
+        thetas, sigmas: ``(F, S)`` angles and marginal standard deviations (radians).
+        inliers: ``(F, S)`` observations judged inliers per frame and camera.
+        report: what the solver did.
+        segments: the self-calibrated segment models, or ``None``.
+        calibration_sigmas: ``(S, 2)`` marginal standard deviations of k and delta_max
+            (radians), or ``None``.
+    """
+
+    thetas: FloatArray
+    sigmas: FloatArray
+    inliers: NDArray[np.int64]
+    report: BatchReport
+    segments: tuple[Segment, ...] | None = None
+    calibration_sigmas: FloatArray | None = None
 
 
 def batch_estimate(
@@ -189,6 +270,8 @@ def batch_estimate(
     progress: bool = False,
     init: str = "chain",
     schedule: SequenceOf[float] | None = None,
+    calibrate: bool = False,
+    calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0)),
 ) -> Estimate:
     """Optimise all frames and segments jointly.
 
@@ -207,11 +290,19 @@ def batch_estimate(
             decisions brings the batch back from there) or ``"smoother"`` (the fixed-lag
             smoother: closer, slower).
         schedule: the GNC continuation of the outlier decisions (projection model).
+        calibrate: self-calibration (projection model): estimate each segment's k and
+            delta_max jointly with the angles, with priors of ``calibration_sigmas``
+            (k, delta_max in radians) around the robot's values. The estimate's ``robot``
+            then holds the calibrated segments and ``calibration_sigmas`` their marginal
+            standard deviations.
 
     Returns:
         The estimate, ``method = "batch"``.
     """
     options = GraphOptions() if options is None else options
+    if calibrate and options.vision != "projection":
+        raise ValueError("calibrate=True: the batch self-calibrates on the projection model "
+                         f"only (vision = {options.vision!r})")
     if init not in INITS:
         raise ValueError(f"init = {init!r}: expected one of {INITS}")
     n_seg = sequence.n_segments
@@ -230,20 +321,25 @@ def batch_estimate(
         initial = np.asarray(initial, dtype=float)
         status = np.full((sequence.n_frames, n_seg), "initial", dtype="<U24")
     inliers = np.zeros((sequence.n_frames, n_seg), dtype=np.int64)
+    robot, cal_sigmas = sequence.robot, None
     if options.vision == "epipolar":
         from apcc_graph.estimation.epipolar_graph import epipolar_solve
 
         thetas, sigmas = epipolar_solve(sequence, initial, theta0, options,
                                         max_iterations=max_iterations, marginals=marginals)
     else:
-        thetas, sigmas, inliers, _ = projection_solve(
-            sequence, initial, theta0, options, schedule, max_iterations,
-            marginals=marginals, progress=progress)
+        found = projection_solve(sequence, initial, theta0, options, schedule, max_iterations,
+                                 marginals=marginals, progress=progress,
+                                 calibrate=calibrate, calibration_sigmas=calibration_sigmas)
+        thetas, sigmas, inliers = found.thetas, found.sigmas, found.inliers
+        if found.segments is not None:
+            robot = Robot(found.segments, robot.cameras)
+            cal_sigmas = found.calibration_sigmas
     status = np.where(np.char.startswith(status, "initial"), "initial", "ok").astype("<U24")
-    return Estimate(method="batch", robot=sequence.robot, timestamps=sequence.timestamps.copy(),
+    return Estimate(method="batch", robot=robot, timestamps=sequence.timestamps.copy(),
                     thetas=thetas, sigmas=sigmas, status=status, inliers=inliers,
-                    world_T_base=sequence.world_T_base)
+                    world_T_base=sequence.world_T_base, calibration_sigmas=cal_sigmas)
 
 
-__all__ = ["BatchReport", "GraphOptions", "batch_estimate", "build_terms", "marginal_sigmas",
-           "optimise", "projection_solve"]
+__all__ = ["BatchReport", "GraphOptions", "ProjectionSolution", "batch_estimate",
+           "build_terms", "marginal_deviations", "marginal_sigmas", "optimise", "projection_solve"]

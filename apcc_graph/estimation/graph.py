@@ -22,12 +22,15 @@ from numpy.typing import NDArray
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_tls_weights
 from apcc_graph.robot import Robot
+from apcc_graph.segment import Segment
 from apcc_graph.sequence import Sequence as RobotSequence
 from factors.projection import (
     CameraChain,
     ProjectionFactor,
     TrackObservations,
     build_observations,
+    calibrated,
+    calibration_key,
     chunk_tracks,
     frame_key,
 )
@@ -35,8 +38,8 @@ from factors.track_points import cut_tracks
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["CameraTerms", "camera_observations", "frame_key", "prior_factors", "thetas_from",
-           "values_from"]
+__all__ = ["CameraTerms", "calibration_factors", "calibration_from", "camera_observations",
+           "frame_key", "prior_factors", "thetas_from", "values_from"]
 
 
 def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
@@ -83,12 +86,15 @@ class CameraTerms:
         chain: the camera's chain (base poses over the frames the observations index).
         n_segments: S.
         frames_per_chunk: see :func:`factors.projection.chunk_tracks`.
+        calibrate: the factors also depend on the segments' ``(k, delta_max)`` variables
+            (:func:`factors.projection.calibration_key`).
     """
 
     def __init__(self, obs: TrackObservations, chain: CameraChain, n_segments: int,
-                 frames_per_chunk: int) -> None:
+                 frames_per_chunk: int, calibrate: bool = False) -> None:
         self.camera = obs.camera
-        self.chunks = [ProjectionFactor(obs.select(c), chain, n_segments)
+        self.chain = chain
+        self.chunks = [ProjectionFactor(obs.select(c), chain, n_segments, calibrate=calibrate)
                        for c in chunk_tracks(obs, frames_per_chunk)]
         self.norms = [np.zeros(len(c.obs)) for c in self.chunks]
 
@@ -96,11 +102,16 @@ class CameraTerms:
         """The gtsam factors (weights are read at every linearisation)."""
         return [c.factor() for c in self.chunks]
 
-    def measure(self, thetas: FloatArray, robust: bool = False) -> None:
+    def measure(self, thetas: FloatArray, robust: bool = False,
+                segments: Sequence[Segment] | None = None) -> None:
         """Residual norms of every observation at ``thetas`` (``(F, S)``, all frames); with
-        ``robust``, each track's point is found afresh, robustly (the first decisions)."""
+        ``robust``, each track's point is found afresh, robustly (the first decisions).
+        ``segments`` replaces the robot's segment models (self-calibration)."""
+        chain = (None if segments is None
+                 else self.chain.with_segments(segments[:len(self.chain.segments)]))
         for i, c in enumerate(self.chunks):
-            self.norms[i] = c.residual_norms(thetas[c.first:c.last + 1], robust=robust)
+            self.norms[i] = c.residual_norms(thetas[c.first:c.last + 1], robust=robust,
+                                             chain=chain)
 
     def set_weights(self, threshold: float, mu: float) -> int:
         """GNC weights from the last :meth:`measure`; returns how many rows changed between
@@ -179,3 +190,20 @@ def values_from(thetas: FloatArray, frames: Iterable[int]) -> gtsam.Values:
 def thetas_from(values: gtsam.Values, frames: Iterable[int]) -> FloatArray:
     """``(F, S)`` angles of ``frames`` in ``values``."""
     return np.array([values.atVector(frame_key(int(f))) for f in frames])
+
+
+def calibration_factors(robot: Robot, sigmas: tuple[float, float]
+                        ) -> list[gtsam.NonlinearFactor]:
+    """Self-calibration priors: each segment's ``(k, delta_max)`` variable
+    (:func:`~factors.projection.calibration_key`) around the robot's values, with standard
+    deviations ``sigmas = (k sigma, delta_max sigma in radians)``."""
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
+    return [gtsam.PriorFactorVector(calibration_key(j), np.array([s.k, s.delta_max]), noise)
+            for j, s in enumerate(robot.segments)]
+
+
+def calibration_from(values: gtsam.Values, robot: Robot) -> tuple[Segment, ...]:
+    """The robot's segments with ``k`` and ``delta_max`` read from ``values`` (clamped to
+    their valid ranges)."""
+    return tuple(calibrated(s, *values.atVector(calibration_key(j)))
+                 for j, s in enumerate(robot.segments))

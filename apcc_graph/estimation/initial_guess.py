@@ -1,6 +1,10 @@
 """A new frame's initial angles, for a streaming estimator.
 
-The prediction (constant angular velocity from the two previous estimates) is refined against
+Where the window knows few points yet (the first frames of a sequence, or after a blackout),
+the angles are first found from the previous frame by the 1-point front end: per segment from
+the base outward, 1-point RANSAC on the generalized epipolar constraint between the previous and
+the new frame (:func:`apcc_graph.solvers.one_point_ransac`), with the segment's base motion from
+the angles below it (:func:`one_point_guess`). Then the prediction (constant angular velocity from the two previous estimates) is refined against
 the tracks the window already knows: each live track's point (triangulated from its earlier
 observations) is held fixed and the new frame's S angles are fitted to the new observations of
 those tracks, all cameras together, by robust Gauss-Newton (Cauchy weights, then the truncated
@@ -16,8 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.kinematics import apcc_transform_scalar
+from apcc_graph.kinematics import apcc_transform, apcc_transform_scalar
 from apcc_graph.robot import Robot
+from apcc_graph.solvers import one_point_ransac
 
 FloatArray = NDArray[np.float64]
 
@@ -173,3 +178,64 @@ def refine(prediction: FloatArray, robot: Robot, world_T_base: FloatArray | None
     for r, flags in zip(rows, inliers, strict=True):
         out[r.camera] = int(flags.sum())
     return InitialGuess(thetas, out, True, tuple(inliers))
+
+
+@dataclass(frozen=True)
+class FramePairs:
+    """One camera's correspondences between the previous and the new frame."""
+
+    camera: int
+    f_a: FloatArray  # (n, 3) unit bearings in the previous frame
+    f_b: FloatArray  # (n, 3) unit bearings in the new frame
+    rows: NDArray[np.int64]  # (n,) their rows among the new frame's observations
+
+
+def _segment_bases(thetas: FloatArray, robot: Robot,
+                   world_T_base: FloatArray | None) -> list[FloatArray]:
+    pose = np.eye(4) if world_T_base is None else np.asarray(world_T_base, dtype=float)
+    out = []
+    for theta, seg in zip(thetas, robot.segments, strict=True):
+        out.append(pose)
+        pose = pose @ apcc_transform(float(theta), seg)
+    return out
+
+
+def one_point_guess(previous: FloatArray, prediction: FloatArray, robot: Robot,
+                    base_previous: FloatArray | None, base_now: FloatArray | None,
+                    pairs: list[FramePairs], threshold_px: float,
+                    rng: np.random.Generator | None = None
+                    ) -> tuple[FloatArray, dict[int, NDArray[np.bool_]]]:
+    """The new frame's angles by the 1-point front end, from the previous frame's.
+
+    Args:
+        previous: ``(S,)`` the previous frame's angles (radians).
+        prediction: ``(S,)`` the fallback of a segment whose RANSAC fails or that has no
+            camera (a camera-less segment keeps it).
+        robot: the robot.
+        base_previous, base_now: the two frames' base poses (``None``: identity).
+        pairs: per camera, its correspondences between the two frames.
+        threshold_px: inlier threshold (pixels, divided by the camera's focal length).
+        rng: RANSAC sampling (default seeded, deterministic).
+
+    Returns:
+        The angles, and per camera that succeeded the inlier mask over its pairs.
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    thetas = np.array(prediction, dtype=float)
+    by_camera = {p.camera: p for p in pairs}
+    before = _segment_bases(previous, robot, base_previous)
+    inliers: dict[int, NDArray[np.bool_]] = {}
+    for i, seg in enumerate(robot.segments):
+        camera = robot.cameras[i]
+        found = by_camera.get(i)
+        if camera is None or found is None or len(found.f_a) < 5:
+            continue
+        now = _segment_bases(thetas, robot, base_now)[i]
+        motion = np.linalg.inv(before[i]) @ now
+        theta, info = one_point_ransac(found.f_a, found.f_b, float(previous[i]), seg,
+                                       camera.tip_T_cam, motion,
+                                       threshold=threshold_px / camera.fx, rng=rng)
+        if info.success:
+            thetas[i] = theta
+            inliers[i] = info.inliers
+    return thetas, inliers

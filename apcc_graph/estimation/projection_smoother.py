@@ -45,7 +45,13 @@ from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from apcc_graph.estimation.graph import camera_chain, frame_key, limit_factor, values_from
-from apcc_graph.estimation.initial_guess import FrameRows, predict, refine
+from apcc_graph.estimation.initial_guess import (
+    FramePairs,
+    FrameRows,
+    one_point_guess,
+    predict,
+    refine,
+)
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
@@ -83,6 +89,11 @@ class ProjectionFixedLagSmoother:
             estimates are still off by about a degree when their pieces commit, and on a
             200-frame room sequence (10% outliers) the error grew from 0.7-2.2x to 12-14x the
             Cramer-Rao bound.
+        front_end_rows: a camera whose new observations include fewer than this many of
+            tracks with known points (the first frames, after a blackout) has its segment's
+            angle started by the 1-point front end from the previous frame
+            (:func:`~apcc_graph.estimation.initial_guess.one_point_guess`) before the
+            refinement.
 
     Example::
 
@@ -104,6 +115,7 @@ class ProjectionFixedLagSmoother:
         loose_sigma: float = math.radians(30.0),
         relinearize: bool = True,
         min_live_rows: int = 4,
+        front_end_rows: int = 20,
     ) -> None:
         if not isinstance(robot, Robot):
             raise ValueError(f"ProjectionFixedLagSmoother.robot: expected a Robot, got "
@@ -131,6 +143,9 @@ class ProjectionFixedLagSmoother:
             raise ValueError(f"ProjectionFixedLagSmoother.min_live_rows = {min_live_rows!r}: "
                              "expected at least 2")
         self.min_live_rows = int(min_live_rows)
+        self.front_end_rows = int(front_end_rows)
+        self._previous_rows: dict[int, tuple] = {}
+        self._rng = np.random.default_rng(0)
         max_frames = self.options.max_track_frames or 10**9
         self._tracks = LiveTracks(robot.camera_segments, max_frames,
                                   self.options.min_track_rows)
@@ -205,14 +220,20 @@ class ProjectionFixedLagSmoother:
             guess_thetas, status = self.theta0.copy(), np.full(S, "initial", dtype="<U24")
         else:
             known, masks = self._known_rows(rows)
-            guess = refine(predict(self._thetas[f - 1], self._thetas.get(f - 2), self.robot),
-                           self.robot, base, known, self.options.inlier_sigmas)
+            prediction = predict(self._thetas[f - 1], self._thetas.get(f - 2), self.robot)
+            counts = {cam: int(mask.sum()) for cam, mask in masks}
+            if any(counts.get(cam, 0) < self.front_end_rows for cam in rows):
+                prediction, _ = one_point_guess(
+                    self._thetas[f - 1], prediction, self.robot, self._bases.get(f - 1), base,
+                    self._pairs(rows), self.options.threshold_px, self._rng)
+            guess = refine(prediction, self.robot, base, known, self.options.inlier_sigmas)
             for (cam, mask), flags in zip(masks, guess.row_inliers, strict=True):
                 weights[cam][mask] = flags.astype(float)
             guess_thetas = guess.thetas
             status = np.full(S, "ok" if guess.refined else "predicted", dtype="<U24")
         for cam, (ids, xy, whiten) in rows.items():
             self._tracks.add(f, cam, ids, xy, whiten, weights[cam])
+        self._previous_rows = rows
         self._times[f], self._bases[f], self._status[f] = t, base, status
         self._thetas[f] = guess_thetas
         self._add_frame(graph, f, t, guess_thetas)
@@ -240,6 +261,24 @@ class ProjectionFixedLagSmoother:
                 b = np.asarray(given, dtype=float)
                 xy = b[:, :2] / b[:, 2:3]
             out[cam] = (ids, xy, camera.pixel_jacobian(xy) / self.options.threshold_px)
+        return out
+
+    def _pairs(self, rows: Mapping[int, tuple]) -> list[FramePairs]:
+        """Each camera's correspondences between the previous frame and the new one."""
+        out = []
+        for cam, (ids, xy, _) in rows.items():
+            before = self._previous_rows.get(cam)
+            if before is None:
+                continue
+            common, now, then = np.intersect1d(ids, before[0], return_indices=True)
+            if len(common) == 0:
+                continue
+
+            def unit(p: FloatArray) -> FloatArray:
+                b = np.column_stack([p, np.ones(len(p))])
+                return b / np.linalg.norm(b, axis=1, keepdims=True)
+
+            out.append(FramePairs(cam, unit(before[1][then]), unit(xy[now]), now))
         return out
 
     def _chain(self, cam: int, first: int, last: int) -> CameraChain:

@@ -26,6 +26,9 @@ class Estimate:
             ``"no-consensus"``, ``"no-camera"``, ``"initial"``).
         inliers: ``(F, S)`` inlier correspondences used (0 where none).
         world_T_base: ``(F, 4, 4)`` base poses if the sequence had them.
+        calibration_sigmas: with self-calibration, ``(S, 2)`` marginal standard deviations
+            of each segment's k and delta_max (radians); ``robot`` then holds the calibrated
+            segments. ``None`` otherwise.
     """
 
     method: str
@@ -36,6 +39,7 @@ class Estimate:
     status: NDArray[np.str_]
     inliers: NDArray[np.int64]
     world_T_base: FloatArray | None = field(default=None, repr=False)
+    calibration_sigmas: FloatArray | None = field(default=None, repr=False)
 
     @property
     def n_frames(self) -> int:

@@ -935,10 +935,10 @@ def smoother_estimate(
     lag: float = 1.0,
     options: GraphOptions | None = None,
     progress: bool = False,
-    vision: str = "epipolar",
+    vision: str = "projection",
     **smoother_options: Any,
 ) -> Estimate:
-    """Run :class:`FixedLagSmoother` over a recorded sequence, frame by frame.
+    """Run a fixed-lag smoother over a recorded sequence, frame by frame.
 
     Each frame's angles are its final smoothed estimate (the last update in which it was inside
     the window). Ground-truth columns are never read.
@@ -949,8 +949,10 @@ def smoother_estimate(
         lag: window length in seconds.
         options: graph construction (:class:`~apcc_graph.estimation.batch.GraphOptions`).
         progress: show a progress bar.
-        vision: ``"epipolar"`` (default, this module) or ``"projection"`` (the experimental
-            :class:`~apcc_graph.estimation.projection_smoother.ProjectionFixedLagSmoother`).
+        vision: ``"projection"`` (default:
+            :class:`~apcc_graph.estimation.projection_smoother.ProjectionFixedLagSmoother`,
+            every observation once) or ``"epipolar"`` (:class:`FixedLagSmoother`, the
+            generalized epipolar model, for comparison; it also self-calibrates).
         **smoother_options: further smoother arguments.
 
     Returns:
@@ -959,6 +961,12 @@ def smoother_estimate(
     """
     if vision == "projection":
         from apcc_graph.estimation.projection_smoother import projection_smoother_estimate
+
+        if smoother_options.get("calibrate"):
+            raise ValueError("calibrate=True: the projection smoother does not self-calibrate; "
+                             "use the batch (method 'batch', calibrate=True) or the epipolar "
+                             "smoother (vision='epipolar')")
+        smoother_options.pop("calibrate", None)
 
         return projection_smoother_estimate(sequence, theta0=theta0, lag=lag, options=options,
                                             progress=progress, **smoother_options)
