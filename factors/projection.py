@@ -180,7 +180,7 @@ def robust_residual_norms(obs: TrackObservations, chain: CameraChain, thetas: Fl
 def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArray, first: int,
                    weights: FloatArray, points: FloatArray | None = None,
                    jacobians: bool = True, refine_points: bool = True,
-                   calibration: bool = False) -> ReducedSystem:
+                   calibration: bool = False, point_iterations: int = 10) -> ReducedSystem:
     """The chunk's reduced Gauss-Newton system (see the module docstring).
 
     Args:
@@ -196,6 +196,12 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
             Fisher information at known points, for the Cramer-Rao bound).
         calibration: add the ``2 n`` columns of the chain's segments' ``(k, delta_max)``
             after the frames' (``D = frames x n + 2 n``).
+        point_iterations: most triangulation iterations from ``points`` (from scratch: 10).
+            With one step from a previous solution the points are not exactly optimal; the
+            system is then the joint Gauss-Newton system in (angles, points) with the points
+            eliminated, whose angle step is as good, but whose ``cost`` is not minimised over
+            the points (an estimator that compares costs, such as Levenberg-Marquardt, needs
+            the default).
     """
     n = len(chain.segments)
     n_frames = len(thetas)
@@ -203,7 +209,8 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
                                 jacobians and calibration)
     pts = None if points is None else np.ascontiguousarray(points.T)
     if refine_points or pts is None:
-        pts = triangulate_rows(obs, Rb, ob, weights, pts)
+        pts = triangulate_rows(obs, Rb, ob, weights, pts,
+                               10 if pts is None else point_iterations)
     proj = project_rows(obs, Rb, ob, pts[:, obs.tracks])
     norms = np.where(proj.valid, np.sqrt(proj.r[0] ** 2 + proj.r[1] ** 2), np.inf)
     sw = np.sqrt(np.where(proj.valid, weights, 0.0))
@@ -328,6 +335,7 @@ class ProjectionFactor:
         self.keys = self.frame_keys + self.calibration_keys
         self.points: FloatArray | None = None
         self.norms: FloatArray | None = None  # residual norms of the last evaluation
+        self.point_iterations = 10  # see reduced_system; 1 suits iSAM2's re-linearisations
         self.dim = len(self.frames) * self.n + (2 * self.n if self.calibrate else 0) + 1
 
     def thetas(self, values: gtsam.Values) -> FloatArray:
@@ -348,7 +356,8 @@ class ProjectionFactor:
         factor's (calibrated segments)."""
         out = reduced_system(self.obs, self.chain if chain is None else chain, thetas,
                              self.first, self.weights, self.points, jacobians,
-                             calibration=self.calibrate and jacobians)
+                             calibration=self.calibrate and jacobians,
+                             point_iterations=self.point_iterations)
         self.points, self.norms = out.points, out.residuals
         return out
 

@@ -10,6 +10,10 @@ and committed, all its observations at once, when one of these happens:
   window: the rest of the track starts a new piece with its own point);
 - it reached ``max_frames`` frames.
 
+An ended piece may be held back (still live) until the estimator commits a batch of them
+(``commit_ended=False`` in :meth:`LiveTracks.take_due`): fewer, larger committed factors, each
+re-linearised at once. Its first frame leaving the window still commits it.
+
 Pieces of fewer than ``min_rows`` observations are dropped when committed (one observation of an
 unknown point carries no information). Observations are kept per frame and dropped with their
 frame when it leaves the window, by then always committed.
@@ -47,6 +51,7 @@ class _Camera:
     first: dict[int, int] = field(default_factory=dict)  # live piece -> first frame
     last: dict[int, int] = field(default_factory=dict)  # live piece -> last frame seen
     points: dict[int, FloatArray] = field(default_factory=dict)  # piece -> world point
+    ended: set[int] = field(default_factory=set)  # pieces whose track ended, not committed
 
 
 class LiveTracks:
@@ -82,14 +87,16 @@ class LiveTracks:
         w = np.ones(len(ids)) if weights is None else np.asarray(weights, dtype=float)
         state.rows.append(_FrameRows(frame, pieces, ids, xy, whiten, w))
 
-    def take_due(self, frame: int, seen: dict[int, IntArray],
-                 leaving_before: int) -> dict[int, TrackObservations]:
+    def take_due(self, frame: int, seen: dict[int, IntArray], leaving_before: int,
+                 commit_ended: bool = True) -> dict[int, TrackObservations]:
         """Commit the pieces that are due before frame ``frame``'s observations are added.
 
         Args:
             frame: the new frame.
             seen: camera -> track ids seen in the new frame.
             leaving_before: frames before this one leave the window in this update.
+            commit_ended: commit the pieces whose tracks ended (now or held back since);
+                ``False`` holds them, live, for a later call.
 
         Returns:
             camera -> the committed observations (pieces with at least ``min_rows`` rows;
@@ -105,10 +112,16 @@ class LiveTracks:
                 # A camera that saw nothing at all (a dropped frame) ends no track: its
                 # tracks may go on in the next frame.
                 ended = not blind and tid not in now
-                if (ended or state.first[piece] < leaving_before
-                        or length >= self.max_frames):
+                if ended:
+                    state.ended.add(piece)
+                    del state.piece_of[tid]
+                elif state.first[piece] < leaving_before or length >= self.max_frames:
                     due.add(piece)
                     del state.piece_of[tid]
+            for piece in list(state.ended):
+                if commit_ended or state.first[piece] < leaving_before:
+                    due.add(piece)
+                    state.ended.discard(piece)
             obs = self._take(state, due)
             if obs is not None:
                 out[cam] = obs
@@ -119,6 +132,7 @@ class LiveTracks:
         out: dict[int, TrackObservations] = {}
         for cam, state in self._cams.items():
             state.piece_of.clear()
+            state.ended.clear()
             obs = self._take(state, set(state.first))
             if obs is not None:
                 out[cam] = obs

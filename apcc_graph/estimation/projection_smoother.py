@@ -94,6 +94,12 @@ class ProjectionFixedLagSmoother:
             angle started by the 1-point front end from the previous frame
             (:func:`~apcc_graph.estimation.initial_guess.one_point_guess`) before the
             refinement.
+        point_iterations: triangulation steps per linearisation of a projection factor, from
+            its points of the previous one (iSAM2 compares no costs, so the joint
+            Gauss-Newton system is enough: see :func:`factors.projection.reduced_system`).
+        commit_every: pieces whose tracks ended are committed together every this many
+            frames (they stay in the live factor until then): fewer committed Python factors
+            for iSAM2 to re-linearise.
 
     Example::
 
@@ -116,6 +122,8 @@ class ProjectionFixedLagSmoother:
         relinearize: bool = True,
         min_live_rows: int = 4,
         front_end_rows: int = 20,
+        point_iterations: int = 1,
+        commit_every: int = 1,
     ) -> None:
         if not isinstance(robot, Robot):
             raise ValueError(f"ProjectionFixedLagSmoother.robot: expected a Robot, got "
@@ -144,6 +152,11 @@ class ProjectionFixedLagSmoother:
                              "expected at least 2")
         self.min_live_rows = int(min_live_rows)
         self.front_end_rows = int(front_end_rows)
+        self.point_iterations = int(point_iterations)
+        if int(commit_every) < 1:
+            raise ValueError(f"ProjectionFixedLagSmoother.commit_every = {commit_every!r}: "
+                             "expected at least 1")
+        self.commit_every = int(commit_every)
         self._previous_rows: dict[int, tuple] = {}
         self._rng = np.random.default_rng(0)
         max_frames = self.options.max_track_frames or 10**9
@@ -210,7 +223,8 @@ class ProjectionFixedLagSmoother:
         first_kept = max(leaving) + 1 if leaving else min(self._times, default=f)
         graph = gtsam.NonlinearFactorGraph()
         seen = {c: ids for c, (ids, _, _) in rows.items()}
-        for cam, obs in self._tracks.take_due(f, seen, first_kept).items():
+        due = self._tracks.take_due(f, seen, first_kept, f % self.commit_every == 0)
+        for cam, obs in due.items():
             self._commit(graph, cam, obs)  # before their first frames leave the window
         self._retire(leaving)
         self._tracks.drop_frames_before(first_kept)
@@ -306,6 +320,7 @@ class ProjectionFixedLagSmoother:
         if not factor.weights.any():
             return
         if self.relinearize:
+            factor.point_iterations = self.point_iterations
             graph.add(factor.factor())
             return
         # Linearised once, here, at estimates the window has refined for as long as the piece
@@ -360,6 +375,7 @@ class ProjectionFixedLagSmoother:
                 continue
             factor = ProjectionFactor(obs, chain, self.robot.n_segments, weights)
             factor.points = np.array([points[int(p)] for p in obs.ids])
+            factor.point_iterations = self.point_iterations
             out.append((graph.size(), cam, factor))
             graph.add(factor.factor())
         return out
