@@ -7,7 +7,8 @@ and committed, all its observations at once, when one of these happens:
 - it ends: the camera no longer sees it in the new frame (a frame in which the camera sees
   nothing at all ends no track);
 - its first frame is about to leave the smoother's window (a piece of a track that outlives the
-  window: the rest of the track starts a new piece with its own point);
+  window: the rest of the track starts a new piece with its own point, or, with
+  :meth:`LiveTracks.take_continuing`, the estimator keeps the track as a landmark);
 - it reached ``max_frames`` frames.
 
 An ended piece may be held back (still live) until the estimator commits a batch of them
@@ -125,6 +126,41 @@ class LiveTracks:
             obs = self._take(state, due)
             if obs is not None:
                 out[cam] = obs
+        return out
+
+    def take_continuing(self, seen: dict[int, IntArray], leaving_before: int,
+                        limit: dict[int, int] | None = None
+                        ) -> dict[int, tuple[TrackObservations, dict[int, int]]]:
+        """Take out the pieces whose first frame leaves the window while their track goes on
+        (the new frame sees it): an estimator keeps their points as variables (landmarks)
+        instead of cutting the tracks. Call before :meth:`take_due`.
+
+        Args:
+            seen: camera -> track ids seen in the new frame.
+            leaving_before: frames before this one leave the window in this update.
+            limit: camera -> most pieces to take (the oldest first); the others stay, and
+                :meth:`take_due` cuts them.
+
+        Returns:
+            camera -> (the pieces' observations, ids are piece ids; track id -> piece), for
+            pieces with at least ``min_rows`` rows.
+        """
+        out: dict[int, tuple[TrackObservations, dict[int, int]]] = {}
+        for cam, state in self._cams.items():
+            if cam not in seen or len(seen[cam]) == 0:
+                continue
+            now = set(seen[cam].tolist())
+            going = {tid: piece for tid, piece in state.piece_of.items()
+                     if state.first[piece] < leaving_before and tid in now}
+            room = None if limit is None else max(int(limit.get(cam, 0)), 0)
+            if room is not None and len(going) > room:
+                oldest = sorted(going.items(), key=lambda item: (state.first[item[1]], item[1]))
+                going = dict(oldest[:room])
+            for tid in going:
+                del state.piece_of[tid]
+            obs = self._take(state, set(going.values()))
+            if obs is not None:
+                out[cam] = (obs, going)
         return out
 
     def take_all(self) -> dict[int, TrackObservations]:
