@@ -70,3 +70,30 @@ def test_bench_tracking_small_run(capsys) -> None:
     assert pairs > 100 and images_per_s > 0
     assert "x the images per second" in text
     assert main(["bench", "tracking", "--noise", "-1"]) == 1
+
+
+def test_bench_smoother_prints_the_lag_bound_for_the_smoother(capsys) -> None:
+    assert main(["bench", "smoother", "--frames", "60", "--seeds", "1", "--outliers", "0.1",
+                 "--methods", "smoother", "--long-frames", "0", "--memory-frames", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "bound of a 1 s fixed lag" in out
+    row = [ln for ln in out.splitlines()
+           if re.match(r"\s+10% outliers\s+smoother\s+[\d.]", ln)]
+    assert len(row) == 2  # the summary row and the lag-bound row
+    assert "30% outliers" not in out
+    assert main(["bench", "smoother", "--outliers", "0.1,1.5"]) == 1
+
+
+def test_bench_selfcal_small_run(capsys) -> None:
+    assert main(["bench", "selfcal", "--frames", "40", "--seeds", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    row = next(ln for ln in lines if re.match(r"\s+1\s+[\d.]+", ln))
+    cells = [float(v) for v in row.split()[1:]]
+    true, wrong, cal, known, unknown = (cells[3 * i:3 * i + 3] for i in range(5))
+    # Wrong models cost more than calibrating them away; the unknown-model bound is above the
+    # known-model one.
+    assert sum(wrong) > sum(cal) and sum(wrong) > sum(true)
+    assert all(u >= k for u, k in zip(unknown, known, strict=True))
+    found = [ln for ln in lines if ln.strip().startswith("seed 1 segment")]
+    assert len(found) == 3 and all("+/-" in ln for ln in found)
+    assert main(["bench", "selfcal", "--outliers", "1.5"]) == 1

@@ -75,6 +75,10 @@ def test_track_runs_on_rendered_images(tmp_path: Path, capsys) -> None:
     (["bench", "accuracy", "--trials", "2", "--plot", "{tmp}/f.jpq"], "f.jpq"),
     (["bench", "images", "--seeds", "a,b"], "--seeds"),
     (["estimate", str(SAMPLE), "--method", "magic", "--out", "{tmp}/e"], "magic"),
+    (["estimate", str(SAMPLE), "--method", "chain", "--calibrate", "--out", "{tmp}/e"],
+     "--calibrate"),
+    (["estimate", str(SAMPLE), "--method", "smoother", "--calibrate", "--out", "{tmp}/e"],
+     "--vision epipolar"),
     (["plot"], "required"),
 ])
 def test_user_mistakes_end_in_one_line_and_exit_1(argv: list[str], expected: str,
@@ -130,3 +134,22 @@ def test_every_subcommand_has_help_with_an_example() -> None:
     for sub in subs:
         text = sub.format_help()
         assert "example" in text and "  apcc-graph " in text.split("example")[-1], sub.prog
+
+
+def test_estimate_calibrate_writes_the_calibrated_robot(tmp_path: Path, capsys) -> None:
+    from apcc_graph.robot import load_robot
+
+    out = tmp_path / "est"
+    assert main(["estimate", str(SAMPLE), "--method", "batch", "--calibrate", "--out",
+                 str(out), THETA0, "--noise-px", "0.5"]) == 0
+    text = capsys.readouterr().out
+    assert "robot_calibrated.toml" in text
+    lines = [ln for ln in text.splitlines() if ln.startswith("segment ") and "k = " in ln]
+    assert len(lines) == 3 and all("+/-" in ln and "delta_max" in ln for ln in lines)
+    robot = load_robot(out / "robot_calibrated.toml")
+    shipped = load_robot(DATA / "robots" / "planar_three.toml")
+    assert robot.n_segments == 3
+    # The shipped sample was simulated with the shipped robot: the calibration stays near it.
+    for a, b in zip(robot.segments, shipped.segments, strict=True):
+        assert abs(a.k - b.k) < 0.05 and abs(a.delta_max - b.delta_max) < 0.05
+        assert a.length == b.length

@@ -86,8 +86,8 @@ def run_self_calibration_benchmark(frames: int = 600, seeds: SequenceOf[int] = (
         theta0 = seq.thetas[0]
         wseq = Sequence(wrong, seq.timestamps, seq.tracks, seq.world_T_base, None, seq.psis)
 
-        def rms(est: np.ndarray) -> np.ndarray:
-            return np.sqrt(np.mean((est - seq.thetas) ** 2, axis=0))
+        def rms(est: np.ndarray, truth: np.ndarray = seq.thetas) -> np.ndarray:
+            return np.sqrt(np.mean((est - truth) ** 2, axis=0))
 
         true = batch_estimate(seq, theta0=theta0, marginals=False)
         off = batch_estimate(wseq, theta0=theta0, marginals=False)
@@ -132,13 +132,14 @@ def format_self_calibration_benchmark(r: SelfCalibrationBenchmark) -> str:
         return _cells(np.median(values, axis=0), "6.2f")
 
     runs = r.runs
-    out += ["", "median over seeds, per segment",
-            f"  calibrated / true models         {median([x.rms_calibrated / x.rms_true for x in runs])}",
-            f"  wrong / true models              {median([x.rms_wrong / x.rms_true for x in runs])}",
-            f"  bound unknown / known models     {median([x.bound_unknown / x.bound_known for x in runs])}",
-            f"  calibrated / bound, unknown      {median([x.rms_calibrated / x.bound_unknown for x in runs])}",
-            f"  true models / bound, known       {median([x.rms_true / x.bound_known for x in runs])}",
-            "", "calibration per seed and segment: found (true) +/- reported sigma [bound]"]
+    ratios = [("calibrated / true models", [x.rms_calibrated / x.rms_true for x in runs]),
+              ("wrong / true models", [x.rms_wrong / x.rms_true for x in runs]),
+              ("bound unknown / known models", [x.bound_unknown / x.bound_known for x in runs]),
+              ("calibrated / bound, unknown", [x.rms_calibrated / x.bound_unknown for x in runs]),
+              ("true models / bound, known", [x.rms_true / x.bound_known for x in runs])]
+    out += ["", "median over seeds, per segment"]
+    out += [f"  {name:<32} {median(values)}" for name, values in ratios]
+    out += ["", "calibration per seed and segment: found (true) +/- reported sigma [bound]"]
     for run in runs:
         for j in range(len(run.truth)):
             k, d = run.found[j]

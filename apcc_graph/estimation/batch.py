@@ -118,9 +118,10 @@ def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
     return marginal_deviations(graph, thetas, frames, dense_limit, calibration)[0]
 
 
-def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, frames: SequenceOf[int],
-              dense_limit: int = 6000, calibration: FloatArray | None = None
-              ) -> tuple[FloatArray, FloatArray | None]:
+def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
+                        frames: SequenceOf[int], dense_limit: int = 6000,
+                        calibration: FloatArray | None = None
+                        ) -> tuple[FloatArray, FloatArray | None]:
     """Marginal standard deviations at the solution: ``(F, S)`` angles and, when
     self-calibrating, ``(S, 2)`` of each segment's k and delta_max (NaN where undetermined).
 
@@ -155,6 +156,27 @@ def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, f
     cal = (None if n_cal == 0 else
            np.array([sigma(calibration_key(j)) for j in range(len(calibration))]))
     return np.array([sigma(frame_key(f)) for f in frames]), cal
+
+
+@dataclass(frozen=True)
+class ProjectionSolution:
+    """What :func:`projection_solve` found.
+
+    Attributes:
+        thetas, sigmas: ``(F, S)`` angles and marginal standard deviations (radians).
+        inliers: ``(F, S)`` observations judged inliers per frame and camera.
+        report: what the solver did.
+        segments: the self-calibrated segment models, or ``None``.
+        calibration_sigmas: ``(S, 2)`` marginal standard deviations of k and delta_max
+            (radians), or ``None``.
+    """
+
+    thetas: FloatArray
+    sigmas: FloatArray
+    inliers: NDArray[np.int64]
+    report: BatchReport
+    segments: tuple[Segment, ...] | None = None
+    calibration_sigmas: FloatArray | None = None
 
 
 def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray,
@@ -237,27 +259,6 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
 
 def _segments(robot: Robot, cal: FloatArray) -> tuple[Segment, ...]:
     return tuple(calibrated(s, k, d) for s, (k, d) in zip(robot.segments, cal, strict=True))
-
-
-@dataclass(frozen=True)
-class ProjectionSolution:
-    """What :func:`projection_solve` found.
-
-    Attributes:
-        thetas, sigmas: ``(F, S)`` angles and marginal standard deviations (radians).
-        inliers: ``(F, S)`` observations judged inliers per frame and camera.
-        report: what the solver did.
-        segments: the self-calibrated segment models, or ``None``.
-        calibration_sigmas: ``(S, 2)`` marginal standard deviations of k and delta_max
-            (radians), or ``None``.
-    """
-
-    thetas: FloatArray
-    sigmas: FloatArray
-    inliers: NDArray[np.int64]
-    report: BatchReport
-    segments: tuple[Segment, ...] | None = None
-    calibration_sigmas: FloatArray | None = None
 
 
 def batch_estimate(

@@ -1,16 +1,16 @@
 """A new frame's initial angles, for a streaming estimator.
 
-Where the window knows few points yet (the first frames of a sequence, or after a blackout),
-the angles are first found from the previous frame by the 1-point front end: per segment from
-the base outward, 1-point RANSAC on the generalized epipolar constraint between the previous and
-the new frame (:func:`apcc_graph.solvers.one_point_ransac`), with the segment's base motion from
-the angles below it (:func:`one_point_guess`). Then the prediction (constant angular velocity from the two previous estimates) is refined against
-the tracks the window already knows: each live track's point (triangulated from its earlier
-observations) is held fixed and the new frame's S angles are fitted to the new observations of
-those tracks, all cameras together, by robust Gauss-Newton (Cauchy weights, then the truncated
-quadratic): a perspective-n-point problem in joint space. Observations are whitened reprojection
-errors (:mod:`factors.track_points`); Jacobians come from the scalar APCC transforms
-(:func:`apcc_graph.kinematics.apcc_transform_scalar`), one frame at a time.
+Where the window knows few points yet (the first frames of a sequence, or after a blackout), the
+angles are first found from the previous frame by the 1-point front end: per segment from the base
+outward, 1-point RANSAC on the generalized epipolar constraint between the previous and the new
+frame (:func:`apcc_graph.solvers.one_point_ransac`), with the segment's base motion from the angles
+below it (:func:`one_point_guess`). Then the prediction (constant angular velocity from the two
+previous estimates) is refined against the tracks the window already knows: each live track's point
+(triangulated from its earlier observations) is held fixed and the new frame's S angles are fitted
+to the new observations of those tracks, all cameras together, by robust Gauss-Newton (Cauchy
+weights, then the truncated quadratic): a perspective-n-point problem in joint space. Observations
+are whitened reprojection errors (:mod:`factors.track_points`); Jacobians come from the scalar APCC
+transforms (:func:`apcc_graph.kinematics.apcc_transform_scalar`), one frame at a time.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
-"""A fixed-lag smoother on the projection model (experimental; ``vision="projection"``).
+"""The fixed-lag smoother on the projection model: ``estimate(..., method="smoother")``.
 
-Status, measured with ``apcc-graph bench smoother``: after its first seconds it comes within
-about 0.7-2.2x of the Cramer-Rao bound on the room scene, but in the first second of a sequence
-with outliers its new pieces (two or three observations) cannot show their wrong associations,
-the new frame's initial guess follows them and the estimate can leave by degrees; and an update
-takes 100-200 ms. The default smoother is the epipolar one (:mod:`apcc_graph.estimation.smoother`).
+Every observation enters the graph once, in a projection factor that eliminates its track's
+point or, for a track that outlives the window, as a landmark observation; ``apcc-graph bench
+smoother`` measures it against the Cramer-Rao bound of the whole sequence and against the bound
+of a fixed lag (:func:`apcc_graph.sequence_bound.lag_bound`). The older epipolar smoother
+(:mod:`apcc_graph.estimation.smoother`, ``vision="epipolar"``) stays for comparison.
 
 This module manages the window and nothing else; the pieces it drives are separate:
 
@@ -18,7 +18,10 @@ This module manages the window and nothing else; the pieces it drives are separa
   current estimates and each observation is judged against it (truncated quadratic,
   ``GraphOptions.inlier_sigmas``);
 - the new frame's initial angles (:mod:`apcc_graph.estimation.initial_guess`): the prediction,
-  refined against the live tracks' points.
+  started by the 1-point front end where few points are known, refined against the live tracks'
+  and the landmarks' points;
+- the landmarks (:mod:`factors.landmark`): tracks that outlive the window keep their point as a
+  variable, with gtsam's C++ projection factors on per-frame camera poses tied to the angles.
 
 gtsam's ``IncrementalFixedLagSmoother`` (iSAM2) holds the window; it re-linearises the
 projection factors whose frames move more than ``relinearize_threshold``, and marginalises frames
@@ -52,6 +55,7 @@ from apcc_graph.estimation.initial_guess import (
     predict,
     refine,
 )
+from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
@@ -59,12 +63,6 @@ from apcc_graph.estimation.robust import gnc_tls_weights
 from apcc_graph.estimation.smoother import SmootherFrame
 from apcc_graph.robot import Robot
 from apcc_graph.sequence import FrameObservations, Sequence
-from factors.landmark import (
-    camera_pose_factor,
-    camera_pose_key,
-    landmark_key,
-    observation_factors,
-)
 from factors.projection import CameraChain, ProjectionFactor, robust_residual_norms
 from factors.track_points import TrackObservations
 
@@ -179,16 +177,9 @@ class ProjectionFixedLagSmoother:
                              "expected at least 1")
         self.commit_every = int(commit_every)
         self.landmarks = bool(landmarks)
-        self.landmark_sigma = float(landmark_sigma)
-        self._landmark_of: dict[int, dict[int, int]] = {c: {} for c in robot.camera_segments}
-        self._landmark_points: dict[int, FloatArray] = {}
-        self._landmark_seen: dict[int, float] = {}
-        self.pose_sigma = float(pose_sigma)
-        self.max_landmarks = int(max_landmarks)
-        self._poses: set[tuple[int, int]] = set()  # (frame, camera) pose variables
-        self._intrinsics = {
-            c: gtsam.Cal3_S2(cam.fx, cam.fy, 0.0, cam.cx, cam.cy)
-            for c, cam in enumerate(robot.cameras) if cam is not None}
+        self._landmarks = Landmarks(robot, self._chain, self._frame_state,
+                                    self.options.threshold_px, self.options.inlier_sigmas,
+                                    self.lag, max_landmarks, landmark_sigma, pose_sigma)
         self._previous_rows: dict[int, tuple] = {}
         self._rng = np.random.default_rng(0)
         max_frames = self.options.max_track_frames or 10**9
@@ -253,16 +244,18 @@ class ProjectionFixedLagSmoother:
                 else np.asarray(observations.world_T_base, dtype=float))
         leaving = [g for g, tg in self._times.items() if tg < t - self.lag]
         first_kept = max(leaving) + 1 if leaving else min(self._times, default=f)
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        stamps: dict[int, float] = {}
+        add = Additions()
+        graph = add.graph
         seen = {c: ids for c, (ids, _, _) in rows.items()}
-        self._forget_landmarks(seen, t)
+        self._landmarks.forget(seen, t)
         if self.landmarks:
-            room = {c: self.max_landmarks - len(of) for c, of in self._landmark_of.items()}
-            promoted = self._tracks.take_continuing(seen, first_kept, room)
+            promoted = self._tracks.take_continuing(seen, first_kept, self._landmarks.room())
             for cam, (obs, tracks) in promoted.items():
-                self._promote(graph, values, stamps, cam, obs, tracks, t)
+                first, last = int(obs.frames.min()), int(obs.frames.max())
+                taken, outliers = self._landmarks.promote(
+                    add, cam, obs, tracks, self._span_thetas(first, last), t)
+                self._committed += taken
+                self._outliers += outliers
         due = self._tracks.take_due(f, seen, first_kept, f % self.commit_every == 0)
         for cam, obs in due.items():
             self._commit(graph, cam, obs)  # before their first frames leave the window
@@ -270,7 +263,7 @@ class ProjectionFixedLagSmoother:
         self._tracks.drop_frames_before(first_kept)
         S = self.robot.n_segments
         weights = {cam: np.ones(len(ids)) for cam, (ids, _, _) in rows.items()}
-        marks = {cam: self._landmarks_in(cam, ids) for cam, (ids, _, _) in rows.items()}
+        marks = {cam: self._landmarks.of(cam, ids) for cam, (ids, _, _) in rows.items()}
         if f == 0:
             guess_thetas, status = self.theta0.copy(), np.full(S, "initial", dtype="<U24")
         else:
@@ -296,12 +289,14 @@ class ProjectionFixedLagSmoother:
             if live.any():
                 self._tracks.add(f, cam, ids[live], xy[live], whiten[live], weights[cam][live])
             if lm.any():
-                self._observe_landmarks(graph, values, stamps, f, t, cam, marks[cam][lm],
-                                        xy[lm], weights[cam][lm])
+                self._landmarks.observe(add, f, t, cam, marks[cam][lm], xy[lm],
+                                        weights[cam][lm])
+                self._committed += int(lm.sum())
+                self._outliers += int(np.sum(weights[cam][lm] == 0.0))
         self._previous_rows = rows
         self._add_frame(graph, f, t, guess_thetas)
         live_factors = self._live_factors(graph)
-        self._solve(graph, f, t, guess_thetas, live_factors, values, stamps)
+        self._solve(graph, f, t, guess_thetas, live_factors, add.values, add.stamps)
         self._count += 1
         return self._frame_estimate(f)
 
@@ -353,6 +348,9 @@ class ProjectionFixedLagSmoother:
         stack = np.stack([np.eye(4) if b is None else b for b in bases])
         return CameraChain(chain.segments, chain.tip_T_cam, stack, None, first)
 
+    def _frame_state(self, g: int) -> tuple[FloatArray, float]:
+        return self._thetas[g], self._times[g]
+
     def _span_thetas(self, first: int, last: int) -> FloatArray:
         return np.array([self._thetas[g] for g in range(first, last + 1)])
 
@@ -383,11 +381,10 @@ class ProjectionFixedLagSmoother:
         landmarks, and per entry the camera and the mask of those rows."""
         out, masks = [], []
         for cam, (ids, xy, whiten) in rows.items():
-            lm = marks[cam] >= 0
-            if lm.any():
-                pts = np.array([self._landmark_points[p] for p in marks[cam][lm].tolist()])
-                out.append(FrameRows(cam, pts, xy[lm], whiten[lm]))
-                masks.append((cam, lm))
+            found = self._landmarks.known_rows(cam, marks[cam], xy, whiten)
+            if found is not None:
+                out.append(found[0])
+                masks.append((cam, found[1]))
             pieces = self._tracks.piece_ids(cam, ids)
             points = self._tracks.points(cam)
             known = np.array([p in points for p in pieces.tolist()], dtype=bool)
@@ -396,99 +393,6 @@ class ProjectionFixedLagSmoother:
                 out.append(FrameRows(cam, pts, xy[known], whiten[known]))
                 masks.append((cam, known))
         return out, masks
-
-    # ------------------------------------------------------------------------- landmarks
-    def _landmarks_in(self, cam: int, ids: NDArray[np.int64]) -> NDArray[np.int64]:
-        """The landmark of each track id (-1 where the track is not one)."""
-        of = self._landmark_of.get(cam, {})
-        return np.array([of.get(t, -1) for t in ids.tolist()], dtype=np.int64)
-
-    def _forget_landmarks(self, seen: Mapping[int, NDArray[np.int64]], t: float) -> None:
-        """Landmarks whose track ended (its camera saw something, but not the track) or that
-        went unseen for most of a lag get no more observations; the smoother marginalises
-        them once they are older than the lag."""
-        for cam, of in self._landmark_of.items():
-            now = set(seen[cam].tolist()) if cam in seen and len(seen[cam]) else None
-            for tid, piece in list(of.items()):
-                stale = t - self._landmark_seen[piece] > 0.8 * self.lag
-                if stale or (now is not None and tid not in now):
-                    del of[tid]
-                    self._landmark_points.pop(piece, None)
-                    self._landmark_seen.pop(piece, None)
-
-    def _promote(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                 stamps: dict[int, float], cam: int, obs: TrackObservations,
-                 tracks: Mapping[int, int], t: float) -> None:
-        """Make landmarks of pieces that outlive the window: a robust point (the outlier
-        decisions of their observations so far), a variable with a weak prior, and gtsam's
-        projection factors of their inlier observations on the camera poses."""
-        first, last = int(obs.frames.min()), int(obs.frames.max())
-        chain = self._chain(cam, first, last)
-        found = ProjectionFactor(obs, chain, self.robot.n_segments)
-        norms = found.residual_norms(self._span_thetas(first, last), robust=True)
-        assert found.points is not None
-        weights = gnc_tls_weights(norms, self.options.inlier_sigmas, math.inf)
-        self._committed += len(obs)
-        self._outliers += int(np.sum(weights == 0.0))
-        inliers = np.add.reduceat(weights > 0.0, obs.starts[:-1])
-        keep = np.flatnonzero(inliers >= 2)
-        if len(keep) == 0:
-            return
-        rows = np.concatenate([np.arange(obs.starts[i], obs.starts[i + 1]) for i in keep])
-        rows = rows[weights[rows] > 0.0]
-        piece_track = {piece: tid for tid, piece in tracks.items()}
-        noise = gtsam.noiseModel.Isotropic.Sigma(3, self.landmark_sigma)
-        for i in keep.tolist():
-            piece, point = int(obs.ids[i]), found.points[i]
-            key = landmark_key(piece)
-            values.insert(key, gtsam.Point3(*point))
-            graph.add(gtsam.PriorFactorPoint3(key, gtsam.Point3(*point), noise))
-            stamps[key] = t
-            self._landmark_points[piece] = point.copy()
-            self._landmark_seen[piece] = t
-            self._landmark_of[cam][piece_track[piece]] = piece
-        for g in np.unique(obs.frames[rows]).tolist():
-            self._ensure_pose(graph, values, stamps, g, cam)
-        for factor in observation_factors(obs.frames[rows], cam, obs.ids[obs.tracks[rows]],
-                                          obs.xy[rows], self._intrinsics[cam],
-                                          self.options.threshold_px):
-            graph.add(factor)
-
-    def _ensure_pose(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                     stamps: dict[int, float], g: int, cam: int) -> None:
-        """Camera ``cam``'s pose variable at frame ``g``, tied to the frame's angles, created
-        when a landmark observation first needs it (a pose without observations would be
-        held by the stiff tie alone: a badly conditioned system)."""
-        if (g, cam) in self._poses:
-            return
-        chain = self._chain(cam, g, g)
-        pose = chain.poses(self._thetas[g][None, :], g, False)[0][0]
-        key = camera_pose_key(g, cam)
-        values.insert(key, gtsam.Pose3(pose))
-        stamps[key] = self._times[g]
-        graph.add(camera_pose_factor(g, cam, chain, self.robot.n_segments, self.pose_sigma))
-        self._poses.add((g, cam))
-
-    def _observe_landmarks(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                           stamps: dict[int, float],
-                           f: int, t: float, cam: int, pieces: NDArray[np.int64],
-                           xy: FloatArray, weights: FloatArray) -> None:
-        """The new frame's observations of landmarks (judged by the initial guess): gtsam's
-        projection factors on the frame's camera pose; the landmarks seen stay in the
-        window."""
-        for piece in pieces.tolist():
-            stamps[landmark_key(piece)] = t
-            self._landmark_seen[piece] = t
-        good = weights > 0.0
-        self._committed += len(pieces)
-        self._outliers += int(np.sum(~good))
-        if not good.any():
-            return
-        self._ensure_pose(graph, values, stamps, f, cam)
-        for factor in observation_factors(np.full(int(good.sum()), f), cam, pieces[good],
-                                          xy[good], self._intrinsics[cam],
-                                          self.options.threshold_px):
-            graph.add(factor)
 
     def _live_factors(self, graph: gtsam.NonlinearFactorGraph
                       ) -> list[tuple[int, int, ProjectionFactor]]:
@@ -578,10 +482,7 @@ class ProjectionFixedLagSmoother:
             key = frame_key(g)
             if estimate.exists(key):
                 self._thetas[g] = estimate.atVector(key)
-        for piece in self._landmark_points:
-            key = landmark_key(piece)
-            if estimate.exists(key):
-                self._landmark_points[piece] = np.asarray(estimate.atPoint3(key), dtype=float)
+        self._landmarks.update_points(estimate)
 
     def _restart(self, f: int, t: float, thetas: FloatArray) -> None:
         """After a gtsam failure: a new smoother holding only frame f, at its guess, with a
@@ -605,15 +506,11 @@ class ProjectionFixedLagSmoother:
         self._tracks = LiveTracks(self.robot.camera_segments, self._tracks.max_frames,
                                   self._tracks.min_rows)
         self._live_indices = []
-        self._landmark_of = {c: {} for c in self.robot.camera_segments}
-        self._landmark_points.clear()
-        self._landmark_seen.clear()
-        self._poses = set()
+        self._landmarks.reset()
 
     def _retire(self, leaving: list[int]) -> None:
         """Record the final estimate of frames that the coming update marginalises."""
-        gone = set(leaving)
-        self._poses = {(g, c) for g, c in self._poses if g not in gone}
+        self._landmarks.retire(leaving)
         for g in sorted(leaving):
             sigmas = self._sigmas(g)
             self._final[g] = SmootherFrame(g, self._times.pop(g), self._thetas.pop(g).copy(),

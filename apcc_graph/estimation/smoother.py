@@ -1,9 +1,10 @@
 """Streaming estimation: a fixed-lag smoother over the last ``lag`` seconds of frames (gtsam).
 
-This is the epipolar smoother, still the default: it grows the epipolar graph
-(:mod:`apcc_graph.estimation.epipolar_graph`) one frame at a time. The smoother on the projection
-model (:mod:`apcc_graph.estimation.projection_smoother`, ``vision="projection"``) is
-experimental: ``docs/estimation.md`` says where each stands against the Cramer-Rao bound.
+This is the epipolar smoother (``vision="epipolar"``), kept for comparison and for its online
+self-calibration: it grows the epipolar graph (:mod:`apcc_graph.estimation.epipolar_graph`) one
+frame at a time. The default smoother is the projection one
+(:mod:`apcc_graph.estimation.projection_smoother`); ``docs/estimation.md`` says where each stands
+against the Cramer-Rao bound.
 Graph:
 
 - variables ``theta[f, i]`` (Vector1, radians), key ``f * S + i`` (as the batch);
