@@ -1,7 +1,8 @@
 """Deviation calibration of one segment: k and delta_max from measured tip poses.
 
 Measurements are taken in the segment's bending plane with the base at the origin and the base
-axis along +z (NOTES.md section 4; the paper's figures use +y): a tip pose is its position
+axis along +z (docs/estimation.md, "Calibrating a segment"; the paper's figures use +y): a tip pose
+is its position
 ``(x, z)`` in metres and its tangent angle ``theta_hat`` in radians from the base axis.
 
 - :func:`calibrate_from_tip`: the paper's III.C steps 3-4 from one pose, in closed form.

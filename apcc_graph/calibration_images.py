@@ -12,7 +12,8 @@ Conventions
 -----------
 - Units: metres, radians in code (``_deg`` keys in files), pixels for images; OpenCV pixel
   coordinates (pixel centres at integers), OpenCV distortion order ``k1, k2, p1, p2[, k3, ...]``.
-- Base frame (NOTES.md section 1): origin at the base, +z the base axis, the bending plane is its
+- Base frame (docs/estimation.md, "Conventions"): origin at the base, +z the base axis, the bending
+plane is its
   x-z plane and a bend ``theta > 0`` moves the tip toward +x. A tip pose is ``(x, z)`` and the
   tip tangent angle from +z toward +x.
 - Marker frame (OpenCV ArUco): origin at the centre of the black square, +x to the marker's right,
@@ -350,7 +351,8 @@ class TipPose:
     def op_distance(self, length: float) -> float:
         """``|OP|``: where the ellipse with foci base and tip and major axis L meets the axis.
 
-        ``|OP| = (L^2 - x^2 - z^2) / (2 (L - z))`` (NOTES.md section 4); ``k = |OP| / L`` for a
+        ``|OP| = (L^2 - x^2 - z^2) / (2 (L - z))`` (docs/estimation.md, "Calibrating a segment");
+        ``k = |OP| / L`` for a
         single pose. ``nan`` when the tip is on the axis at ``z >= L``.
         """
         if self.z >= length:
@@ -359,7 +361,7 @@ class TipPose:
 
 
 def rotation_y(angle: float) -> FloatArray:
-    """``Ry(angle)``: turns +z toward +x (a positive bend, NOTES.md section 1)."""
+    """``Ry(angle)``: turns +z toward +x (a positive bend, docs/estimation.md, "Conventions")."""
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 

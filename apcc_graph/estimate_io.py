@@ -1,4 +1,4 @@
-"""Estimates on disk: ``theta.csv`` and one TUM trajectory per segment tip (DESIGN.md "Files").
+"""Estimates on disk: ``theta.csv`` and one TUM trajectory per segment tip (docs/formats.md).
 
 - ``theta.csv``: ``frame,timestamp,theta_1..theta_S,sigma_1..sigma_S`` (radians; a sigma is
   written as ``nan`` where the method gives none);

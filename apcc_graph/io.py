@@ -1,4 +1,4 @@
-"""Sequence folders on disk (DESIGN.md "Files"), read with validation and written atomically.
+"""Sequence folders on disk (docs/formats.md), read with validation and written atomically.
 
 A sequence is a folder::
 

@@ -1,12 +1,13 @@
 """Segment kinematics: PCC (Webster and Jones) and APCC 2L-5R, with exact derivatives.
 
-Frames (NOTES.md section 1). A segment's base frame has +z along the backbone tangent. A planar
+Frames (docs/estimation.md, "Conventions"). A segment's base frame has +z along the backbone
+tangent. A planar
 segment bends in its x-z plane by a rotation about +y; ``theta > 0`` moves the tip toward +x. A
 spatial segment's bending plane is turned by ``psi`` about +z:
 ``T(theta, psi) = Rz(psi) T(theta, 0) Rz(-psi)``. Every transform returned here is ``base_T_tip``
 (it maps points in the tip frame to the base frame), as a homogeneous ``(..., 4, 4)`` array.
 
-APCC 2L-5R (NOTES.md section 3), joints from base to tip::
+APCC 2L-5R (docs/estimation.md, "The robot"), joints from base to tip::
 
     Rz(psi) . Ry(theta - phi) . [link l1 along z] . Ry(phi) . [link l2 along z]
             . Ry(-delta) . Rz(-psi)
@@ -100,8 +101,9 @@ def plane_to_transform(beta: ArrayLike, px: ArrayLike, pz: ArrayLike, psi: Array
 def pcc_transform(theta: ArrayLike, length: float, psi: ArrayLike = 0.0) -> FloatArray:
     """Constant-curvature (PCC) segment transform ``base_T_tip`` (Webster and Jones).
 
-    ``T = [Ry(theta) | (L/theta) (1 - cos theta, 0, sin theta)]`` turned by ``psi`` (NOTES.md
-    section 2). Written as ``L (sin(theta/2) sinc(theta/2), 0, sinc(theta))``, so it is exact and
+    ``T = [Ry(theta) | (L/theta) (1 - cos theta, 0, sin theta)]`` turned by ``psi`` (the
+    constant-curvature model). Written as ``L (sin(theta/2) sinc(theta/2), 0, sinc(theta))``, so it
+    is exact and
     finite at ``theta = 0`` (the straight segment) with no division by theta.
 
     Args:
@@ -190,7 +192,7 @@ def apcc_in_plane(theta: ArrayLike, segment: Segment) -> InPlaneAPCC:
 
 
 def apcc_transform(theta: ArrayLike, segment: Segment, psi: ArrayLike = 0.0) -> FloatArray:
-    """APCC 2L-5R segment transform ``base_T_tip`` (NOTES.md section 3).
+    """APCC 2L-5R segment transform ``base_T_tip`` (docs/estimation.md, "The robot").
 
     The tip lies on the PCC chord at angle ``theta/2`` from the base axis, and the tip tangent is at
     ``theta - delta``. With ``k = 0.25`` and ``delta_max = 0`` it agrees with :func:`pcc_transform`

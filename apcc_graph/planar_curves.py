@@ -1,7 +1,8 @@
 """Planar rods whose curvature varies along the arc: shapes that PCC cannot represent exactly.
 
 A real segment under a tip force or a distributed load does not bend with constant curvature
-(NOTES.md section 4). This module integrates planar curves with a curvature profile, to make test
+(docs/estimation.md, "Calibrating a segment"). This module integrates planar curves with a
+curvature profile, to make test
 and benchmark data for calibration and to simulate model mismatch. Frames as everywhere: base at
 the origin, base axis +z, bending toward +x for positive angles; metres and radians.
 

@@ -1,6 +1,7 @@
 """A continuum robot: a chain of APCC segments, each optionally carrying a tip camera.
 
-Segment ``i + 1``'s base frame is segment ``i``'s tip frame (NOTES.md section 1). Segment indices
+Segment ``i + 1``'s base frame is segment ``i``'s tip frame (docs/estimation.md, "Conventions").
+Segment indices
 are 0-based in code; files number cameras 1..S (``cam_<i>.csv`` rides on segment ``i``).
 Poses are ``(..., 4, 4)`` homogeneous arrays named ``a_T_b`` (maps points in b to a).
 """
@@ -232,7 +233,7 @@ class Robot:
 
 
 def load_robot(path: str | Path) -> Robot:
-    """Read a ``robot.toml`` file (format ``apcc-graph/robot@1``, see DESIGN.md).
+    """Read a ``robot.toml`` file (format ``apcc-graph/robot@1``, see docs/formats.md).
 
     Raises:
         ValueError: the message names the file and the key at fault.

@@ -1,4 +1,4 @@
-"""The ``robot.toml`` file (format ``apcc-graph/robot@1``, DESIGN.md "Files").
+"""The ``robot.toml`` file (format ``apcc-graph/robot@1``, docs/formats.md).
 
 Angles are degrees in the file (keys ending in ``_deg``) and radians in memory. The camera mounting
 ``tip_T_cam`` is a translation in metres and a unit quaternion ``(w, x, y, z)``. Every error names

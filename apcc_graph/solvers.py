@@ -1,6 +1,7 @@
 """The 1-point solver for a segment's angle, and 1-point RANSAC around it.
 
-Problem (NOTES.md section 5). With frame a's angle ``theta_a``, the camera mounting and the base
+Problem (docs/estimation.md, "Two frames"). With frame a's angle ``theta_a``, the camera mounting
+and the base
 motion known, one correspondence ``(f_a, f_b)`` gives one equation in the unknown ``theta_b``:
 ``g(theta_b) = f_a . (t x R f_b) = 0`` with ``(R, t) = camA_T_camB(theta_b)``.
 

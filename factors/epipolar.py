@@ -14,7 +14,8 @@ frame instead of an angle plus a 6-dof pose per segment, and the APCC chain hold
 the residual rather than as a soft constraint; the graph is 7x smaller and needs no pose
 initialisation. The robot base poses ``world_T_base`` are known inputs (identity for a fixed base).
 
-Residual (paper section IV, NOTES.md section 5): per correspondence, the Sampson error of unit
+Residual (paper section IV; docs/estimation.md, "Two frames"): per correspondence, the Sampson
+error of unit
 bearings ``e`` (radians on the bearings' tangent planes, :mod:`apcc_graph.geometry`), whitened by
 ``sigma`` (radians; pixel noise / focal length): ``r = e / sigma``, dimensionless. Robust loss per
 correspondence: gtsam's robust noise models reweight a whole factor by one weight, so the factor

@@ -3,7 +3,8 @@
 Variables: ``world_T_base`` and ``world_T_tip`` (``gtsam.Pose3``; rotation in radians, translation
 in metres, both poses map points in their frame to the world frame) and the bending angle
 ``theta`` (a Vector1 value, radians). The segment's APCC 2L-5R transform ``base_T_tip(theta; psi)``
-is :func:`apcc_graph.kinematics.apcc_transform` (NOTES.md section 3, paper III.B eq. 2-5), with a
+is :func:`apcc_graph.kinematics.apcc_transform` (docs/estimation.md, "The robot"; paper III.B eq.
+2-5), with a
 fixed bending-plane angle ``psi`` (radians).
 
 Residual, in the tangent space of Pose3 at the measured tip (GTSAM order ``(omega, v)``: radians,

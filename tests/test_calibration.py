@@ -28,7 +28,8 @@ def paper_tip() -> tuple[float, float]:
 
 
 def test_paper_numbers() -> None:
-    """NOTES.md section 4: chord 42, tip 76 -> delta_max 8 deg; k = 11.1 / 49.6 = 0.224."""
+    """The paper's example (docs/estimation.md, "Calibrating a segment"): chord 42, tip 76 ->
+    delta_max 8 deg; k = 11.1 / 49.6 = 0.224."""
     cal = calibrate_from_tip(paper_tip(), math.radians(76.0), 0.496)
     assert math.degrees(cal.theta_max) == pytest.approx(84.0, abs=1e-9)
     assert math.degrees(cal.delta_max) == pytest.approx(8.0, abs=1e-9)

@@ -110,7 +110,8 @@ def test_tip_from_exact_marker_poses(x: float, z: float, angle: float, base_offs
     rate=st.floats(-0.5, 0.5),
 )
 def test_op_distance_is_k_times_length(k: float, theta: float, rate: float) -> None:
-    """|OP| = k L on the APCC model, and the chord is at theta / 2 (NOTES.md sections 3-4)."""
+    """|OP| = k L on the APCC model, and the chord is at theta / 2 (docs/estimation.md, "The
+    robot", "Calibrating a segment")."""
     seg = Segment(0.4, k=k, delta_max=rate * math.pi, theta_max=math.pi)
     tip = apcc_tip(seg, theta)
     assert tip.op_distance(0.4) == pytest.approx(k * 0.4, rel=1e-9)

@@ -190,7 +190,7 @@ def test_sampson_error_is_zero_on_noise_free_data(seed: int) -> None:
     assert e.shape == (200,)
     assert np.max(np.abs(e)) < 1e-9
     # A wrong angle (1 degree off) gives errors far above zero (weakly: the bend's rotation moves
-    # points mostly along their epipolar lines, NOTES.md section 5).
+    # points mostly along their epipolar lines, docs/estimation.md, "Two frames").
     e_wrong = sampson_error(f_a, f_b, essential_matrix(pose_of(case, case["theta_b"] + 0.02)))
     assert np.median(np.abs(e_wrong)) > 0.1 / FOCAL
 

@@ -1,4 +1,4 @@
-"""Tests of the sequence folder format (DESIGN.md "Files"): apcc_graph.io.
+"""Tests of the sequence folder format (docs/formats.md): apcc_graph.io.
 
 Round trips (equality and byte-for-byte stability), the shipped sample and its seeded
 regeneration, every validation error (file, line and column named), dropped pixels, atomic and

@@ -1,4 +1,5 @@
-"""Kinematics: the identities of NOTES.md sections 2-3, finiteness at 0, and exact derivatives."""
+"""Kinematics: the identities of the APCC model (docs/estimation.md), finiteness at 0, and exact
+derivatives."""
 
 from __future__ import annotations
 
@@ -172,7 +173,7 @@ def test_k_quarter_agrees_with_pcc_to_fourth_order() -> None:
     np.testing.assert_allclose(slopes, 4.0, atol=0.02)
     other = np.array([_pcc_gap(t, 0.2) for t in thetas])
     np.testing.assert_allclose(np.diff(np.log(other)) / np.diff(np.log(thetas)), 2.0, atol=0.02)
-    # NOTES.md: about 3e-8 m at 5 deg and 7e-6 m at 20 deg for L = 0.5 m.
+    # Expected: about 3e-8 m at 5 deg and 7e-6 m at 20 deg for L = 0.5 m.
     assert 2e-8 < _pcc_gap(math.radians(5), 0.25) < 4e-8
     assert 5e-6 < _pcc_gap(math.radians(20), 0.25) < 9e-6
 

@@ -194,7 +194,7 @@ def test_sensor_noise_blur_and_exposure() -> None:
 def test_tracking_on_a_rendered_pair_recovers_the_true_correspondences(
         room: TexturedRoom) -> None:
     """KLT on two rendered views; the truth of a tracked pixel in view a is the wall point it
-    shows, projected into view b. Most tracks agree within 0.5 px (issue 6)."""
+    shows, projected into view b. Most tracks agree within 0.5 px."""
     a = pose((0.05, 0.02, 0.0), (0.1, 0.0, 0.5))
     b = pose((0.08, 0.0, 0.03), (0.12, 0.01, 0.52))
     images = list(render_images(room, CAMERA, np.stack([a, b]), SensorModel(noise_grey=2.0),
@@ -237,7 +237,7 @@ def test_write_sequence_images_is_atomic_and_deterministic(tmp_path: Path,
 
 # -------------------------------------------------------------------------------- end to end
 def test_images_to_tracks_to_smoother_end_to_end() -> None:
-    """Issue 6's end-to-end target on a CI-sized rendered sequence (40 frames, 3 cameras):
+    """The end-to-end target on a CI-sized rendered sequence (40 frames, 3 cameras):
     every segment under 1 deg and at most 1.5x the same pipeline fed with simulated 1 px tracks
     of the same motion. Measured (seed 1): 0.05 / 0.04 / 0.03 deg against 0.22 / 0.21 / 0.21."""
     pytest.importorskip("skimage")

@@ -1,6 +1,7 @@
 """``apcc-graph bench accuracy``: the paper's Fig. 10 protocol against the Cramer-Rao bound.
 
-Protocol (paper V.B; NOTES.md section 6): L = 0.5 m, f = 500 px (640x480), theta_a in
+Protocol (paper V.B; docs/estimation.md, "The paper's two-view experiment"): L = 0.5 m, f = 500 px
+(640x480), theta_a in
 [-50, 50] deg, steps 1 to 5 deg (the paper: under 5 deg; steps under 1 deg carry almost no
 parallax and are the chain's "no-motion" case), fixed base and moving base (rotation alpha in
 [-5, 5] deg about a pivot 1 m below the base, so the base moves under 0.1 m), Gaussian pixel

@@ -10,7 +10,7 @@ is observed twice:
 
 Both go through the same estimator (the fixed-lag smoother, and the chain for reference), started
 from the true first configuration. Reported per seed and segment: RMS error (degrees), the ratio
-images / simulated, and the targets of issue 6 (every segment at most 1.5x the simulated-track
+images / simulated, and the end-to-end targets (every segment at most 1.5x the simulated-track
 pipeline and under 1 degree). Throughput: rendering and tracking, images per second over every
 image of the run (640x480, in memory; the tracker alone, PNG decoding not included).
 """
@@ -92,7 +92,7 @@ def run_images_benchmark(frames: int = 150, seeds: tuple[int, ...] = (1, 2, 3, 4
 
 
 def format_images_benchmark(runs: list[ImagesRun], frames: int, noise_grey: float) -> str:
-    """The benchmark's tables and the verdict on issue 6's targets."""
+    """The benchmark's tables and the verdict on the end-to-end targets."""
     n_seg = len(next(iter(runs[0].rms.values())))
     segs = " ".join(f"{'seg ' + str(i + 1):>7}" for i in range(n_seg))
     lines = [

@@ -192,8 +192,8 @@ class FixedLagSmoother:
         keyframe_every, keyframes: every ``keyframe_every``-th frame becomes a keyframe and
             the last ``keyframes`` of them stay in the window beyond ``lag`` (their timestamps
             are renewed); new frames are also paired with every keyframe they share tracks
-            with. Long baselines are what observe the absolute configuration (NOTES.md
-            section 5); keyframes give them at the cost of more pairs per frame and of a
+            with. Long baselines are what observe the absolute configuration (docs/estimation.md,
+            "Two frames"); keyframes give them at the cost of more pairs per frame and of a
             window gtsam must re-eliminate whole at every update. Off by default
             (``keyframes=0``): on three 300-frame room-scene sequences, 6 keyframes every 10
             frames cut the RMS on some segments and raised it on others, at 4x the update time.
