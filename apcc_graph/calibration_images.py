@@ -12,9 +12,8 @@ Conventions
 -----------
 - Units: metres, radians in code (``_deg`` keys in files), pixels for images; OpenCV pixel
   coordinates (pixel centres at integers), OpenCV distortion order ``k1, k2, p1, p2[, k3, ...]``.
-- Base frame (docs/estimation.md, "Conventions"): origin at the base, +z the base axis, the bending
-plane is its
-  x-z plane and a bend ``theta > 0`` moves the tip toward +x. A tip pose is ``(x, z)`` and the
+- Base frame (docs/estimation.md, "Conventions"): origin at the base, +z the base axis, the
+  bending plane is its x-z plane and a bend ``theta > 0`` moves the tip toward +x. A tip pose is ``(x, z)`` and the
   tip tangent angle from +z toward +x.
 - Marker frame (OpenCV ArUco): origin at the centre of the black square, +x to the marker's right,
   +y up, +z out of the printed face; corners in detection order top-left, top-right,
@@ -352,8 +351,7 @@ class TipPose:
         """``|OP|``: where the ellipse with foci base and tip and major axis L meets the axis.
 
         ``|OP| = (L^2 - x^2 - z^2) / (2 (L - z))`` (docs/estimation.md, "Calibrating a segment");
-        ``k = |OP| / L`` for a
-        single pose. ``nan`` when the tip is on the axis at ``z >= L``.
+        ``k = |OP| / L`` for a single pose. ``nan`` when the tip is on the axis at ``z >= L``.
         """
         if self.z >= length:
             return math.nan

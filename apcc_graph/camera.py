@@ -3,9 +3,8 @@
 Conventions: pixels are ``(u, v)`` with the origin at the top-left pixel corner as in OpenCV;
 the camera frame has +z along the optical axis, +x to the right of the image, +y down.
 ``tip_T_cam`` maps points in the camera frame to the tip frame (docs/estimation.md, "Conventions");
-a camera
-looking straight along the backbone has ``tip_T_cam = identity``. Distortion coefficients are in
-OpenCV order ``k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tx, ty]]]]``.
+a camera looking straight along the backbone has ``tip_T_cam = identity``. Distortion coefficients
+are in OpenCV order ``k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tx, ty]]]]``.
 """
 
 from __future__ import annotations

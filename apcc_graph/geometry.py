@@ -1,7 +1,7 @@
 """Two-view geometry of a tip camera: relative pose, essential matrix, Sampson error.
 
-Frames (docs/estimation.md, "Conventions" and "Two frames"). For one segment between frames a and
-b::
+Frames (docs/estimation.md, "Conventions" and "Two frames"). For one segment between frames
+a and b::
 
     camA_T_camB = cam_T_tip . T(theta_a)^-1 . baseA_T_baseB . T(theta_b) . tip_T_cam
 

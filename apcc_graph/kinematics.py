@@ -1,9 +1,8 @@
 """Segment kinematics: PCC (Webster and Jones) and APCC 2L-5R, with exact derivatives.
 
 Frames (docs/estimation.md, "Conventions"). A segment's base frame has +z along the backbone
-tangent. A planar
-segment bends in its x-z plane by a rotation about +y; ``theta > 0`` moves the tip toward +x. A
-spatial segment's bending plane is turned by ``psi`` about +z:
+tangent. A planar segment bends in its x-z plane by a rotation about +y; ``theta > 0`` moves the tip
+toward +x. A spatial segment's bending plane is turned by ``psi`` about +z:
 ``T(theta, psi) = Rz(psi) T(theta, 0) Rz(-psi)``. Every transform returned here is ``base_T_tip``
 (it maps points in the tip frame to the base frame), as a homogeneous ``(..., 4, 4)`` array.
 
@@ -103,8 +102,7 @@ def pcc_transform(theta: ArrayLike, length: float, psi: ArrayLike = 0.0) -> Floa
 
     ``T = [Ry(theta) | (L/theta) (1 - cos theta, 0, sin theta)]`` turned by ``psi`` (the
     constant-curvature model). Written as ``L (sin(theta/2) sinc(theta/2), 0, sinc(theta))``, so it
-    is exact and
-    finite at ``theta = 0`` (the straight segment) with no division by theta.
+    is exact and finite at ``theta = 0`` (the straight segment) with no division by theta.
 
     Args:
         theta: bending angle(s) in radians, any shape.

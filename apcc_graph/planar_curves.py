@@ -1,10 +1,10 @@
 """Planar rods whose curvature varies along the arc: shapes that PCC cannot represent exactly.
 
 A real segment under a tip force or a distributed load does not bend with constant curvature
-(docs/estimation.md, "Calibrating a segment"). This module integrates planar curves with a
-curvature profile, to make test
-and benchmark data for calibration and to simulate model mismatch. Frames as everywhere: base at
-the origin, base axis +z, bending toward +x for positive angles; metres and radians.
+(docs/estimation.md, "Calibrating a segment"). This module integrates planar curves with a curvature
+profile, to make test and benchmark data for calibration and to simulate model mismatch. Frames as
+everywhere: base at the origin, base axis +z, bending toward +x for positive angles; metres and
+radians.
 
 The profile used here grows linearly along the arc, with the total bend fixed:
 ``kappa(s) = theta / L * (1 + g s / L) / (1 + g / 2)``, so the tangent angle is

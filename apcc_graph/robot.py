@@ -1,9 +1,8 @@
 """A continuum robot: a chain of APCC segments, each optionally carrying a tip camera.
 
 Segment ``i + 1``'s base frame is segment ``i``'s tip frame (docs/estimation.md, "Conventions").
-Segment indices
-are 0-based in code; files number cameras 1..S (``cam_<i>.csv`` rides on segment ``i``).
-Poses are ``(..., 4, 4)`` homogeneous arrays named ``a_T_b`` (maps points in b to a).
+Segment indices are 0-based in code; files number cameras 1..S (``cam_<i>.csv`` rides on segment
+``i``). Poses are ``(..., 4, 4)`` homogeneous arrays named ``a_T_b`` (maps points in b to a).
 """
 
 from __future__ import annotations

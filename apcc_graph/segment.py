@@ -1,7 +1,7 @@
 """One approximately-constant-curvature (ACC) segment and its APCC 2L-5R parameters.
 
-Units: metres and radians. The parameters follow docs/estimation.md ("The robot") and the paper's
-Table I:
+Units: metres and radians. The parameters follow docs/estimation.md ("The robot") and the
+paper's Table I:
 
 - ``length`` L: arc length of the segment (metres);
 - ``k``: deviation coefficient; the two rigid links have lengths ``l1 = (1 - k) L`` (base side) and

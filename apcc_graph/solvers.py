@@ -1,8 +1,8 @@
 """The 1-point solver for a segment's angle, and 1-point RANSAC around it.
 
 Problem (docs/estimation.md, "Two frames"). With frame a's angle ``theta_a``, the camera mounting
-and the base
-motion known, one correspondence ``(f_a, f_b)`` gives one equation in the unknown ``theta_b``:
+and the base motion known, one correspondence ``(f_a, f_b)`` gives one equation in the unknown
+``theta_b``:
 ``g(theta_b) = f_a . (t x R f_b) = 0`` with ``(R, t) = camA_T_camB(theta_b)``.
 
 Method (works for every 0 < k < 0.5 and keeps delta exactly). Write

@@ -4,8 +4,7 @@ Variables: ``world_T_base`` and ``world_T_tip`` (``gtsam.Pose3``; rotation in ra
 in metres, both poses map points in their frame to the world frame) and the bending angle
 ``theta`` (a Vector1 value, radians). The segment's APCC 2L-5R transform ``base_T_tip(theta; psi)``
 is :func:`apcc_graph.kinematics.apcc_transform` (docs/estimation.md, "The robot"; paper III.B eq.
-2-5), with a
-fixed bending-plane angle ``psi`` (radians).
+2-5), with a fixed bending-plane angle ``psi`` (radians).
 
 Residual, in the tangent space of Pose3 at the measured tip (GTSAM order ``(omega, v)``: radians,
 then metres)::

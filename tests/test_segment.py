@@ -21,8 +21,8 @@ def test_defaults_and_link_lengths() -> None:
 
 
 def test_paper_deviation_at_sixty_degrees() -> None:
-    """The paper's calibration example (docs/estimation.md): delta(60 deg) = 8 * 60 / 84 = 5.71
-    deg."""
+    """The paper's calibration example (docs/estimation.md): delta(60 deg) = 8 * 60 / 84
+    = 5.71 deg."""
     seg = Segment(0.496, k=0.224, delta_max=math.radians(8), theta_max=math.radians(84))
     assert math.degrees(float(seg.delta(math.radians(60)))) == pytest.approx(8 * 60 / 84)
     assert math.degrees(float(seg.tip_angle(math.radians(84)))) == pytest.approx(76.0)

@@ -1,11 +1,10 @@
 """``apcc-graph bench accuracy``: the paper's Fig. 10 protocol against the Cramer-Rao bound.
 
 Protocol (paper V.B; docs/estimation.md, "The paper's two-view experiment"): L = 0.5 m, f = 500 px
-(640x480), theta_a in
-[-50, 50] deg, steps 1 to 5 deg (the paper: under 5 deg; steps under 1 deg carry almost no
-parallax and are the chain's "no-motion" case), fixed base and moving base (rotation alpha in
-[-5, 5] deg about a pivot 1 m below the base, so the base moves under 0.1 m), Gaussian pixel
-noise 0 to 2 px, ``points`` correspondences at 1-5 m, no outliers, 5000 trials per point by
+(640x480), theta_a in [-50, 50] deg, steps 1 to 5 deg (the paper: under 5 deg; steps under 1 deg
+carry almost no parallax and are the chain's "no-motion" case), fixed base and moving base (rotation
+alpha in [-5, 5] deg about a pivot 1 m below the base, so the base moves under 0.1 m), Gaussian
+pixel noise 0 to 2 px, ``points`` correspondences at 1-5 m, no outliers, 5000 trials per point by
 default. Each trial is solved by :func:`apcc_graph.solvers.one_point_ransac`, and its bound is
 :func:`apcc_graph.evaluate.crlb_theta` at the truth. Reported per noise level: mean and median
 |error|, the median bound, and efficiency = median(|error| / bound) / 0.6745 (the median of

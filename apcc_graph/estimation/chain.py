@@ -4,9 +4,8 @@ For frame f and segment i, the motion of the segment's base between frames f-1 a
 the robot base poses (if any) and the angles of segments 0..i-1 already estimated for both frames;
 theta_i(f) is then estimated from theta_i(f-1) by 1-point RANSAC on the correspondences of camera
 i between the two frames. Errors pile up along the sequence and outward along the robot (the paper
-says so; docs/estimation.md, "Two frames", says why): this is the baseline the factor-graph back
-end must
-beat, and its initialiser.
+says so; docs/estimation.md, "Two frames", says why): this is the baseline the factor-graph back end
+must beat, and its initialiser.
 
 Outcomes per frame and segment (``Estimate.status``): ``"ok"``; ``"no-motion"`` (the camera saw
 no parallax: the angle is carried over, which is what the data say); ``"no-consensus"`` or
