@@ -2,7 +2,8 @@
 
 Measurements are taken in the segment's bending plane with the base at the origin and the base
 axis along +z (docs/estimation.md, "Calibrating a segment"; the paper's figures use +y): a tip pose
-is its position ``(x, z)`` in metres and its tangent angle ``theta_hat`` in radians from the base axis.
+is its position ``(x, z)`` in metres and its tangent angle ``theta_hat`` in radians from the base
+axis.
 
 - :func:`calibrate_from_tip`: the paper's III.C steps 3-4 from one pose, in closed form.
   ``theta = 2 atan2(x, z)`` (the tip lies on the chord at theta/2), ``delta = theta - theta_hat``

@@ -13,8 +13,8 @@ Conventions
 - Units: metres, radians in code (``_deg`` keys in files), pixels for images; OpenCV pixel
   coordinates (pixel centres at integers), OpenCV distortion order ``k1, k2, p1, p2[, k3, ...]``.
 - Base frame (docs/estimation.md, "Conventions"): origin at the base, +z the base axis, the
-  bending plane is its x-z plane and a bend ``theta > 0`` moves the tip toward +x. A tip pose is ``(x, z)`` and the
-  tip tangent angle from +z toward +x.
+  bending plane is its x-z plane and a bend ``theta > 0`` moves the tip toward +x. A tip pose is
+  ``(x, z)`` and the tip tangent angle from +z toward +x.
 - Marker frame (OpenCV ArUco): origin at the centre of the black square, +x to the marker's right,
   +y up, +z out of the printed face; corners in detection order top-left, top-right,
   bottom-right, bottom-left, i.e. ``(-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)`` for the
