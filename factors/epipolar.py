@@ -19,8 +19,9 @@ of unit bearings ``e`` (radians on the bearings' tangent planes, :mod:`apcc_grap
 whitened by ``sigma`` (radians; pixel noise / focal length): ``r = e / sigma``, dimensionless.
 Robust loss per correspondence: gtsam's robust noise models reweight a whole factor by one
 weight, so the factor applies the m-estimator weight ``w(r_k)`` of each correspondence itself,
-exactly as ``noiseModel::Robust::WhitenSystem`` does for one residual: residual and Jacobian rows scaled by
-``sqrt(w(r_k))``, the weight held fixed while linearising (iteratively reweighted least squares).
+exactly as ``noiseModel::Robust::WhitenSystem`` does for one residual: residual and Jacobian rows
+scaled by ``sqrt(w(r_k))``, the weight held fixed while linearising (iteratively reweighted least
+squares).
 
 Two groupings of the same residual:
 
