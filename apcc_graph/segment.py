@@ -114,3 +114,16 @@ class Segment:
     def tip_angle(self, theta: ArrayLike) -> NDArray[np.float64]:
         """Tip tangent angle ``theta_hat = theta - delta`` (paper eq. 4), radians."""
         return np.asarray(theta, dtype=float) * (1.0 - self.deviation_rate)
+
+
+K_MARGIN = 1e-3
+"""How close to its open range ``(0, 0.5)`` a calibrated ``k`` may come."""
+
+
+def calibrated(segment: Segment, k: float, delta_max: float) -> Segment:
+    """``segment`` with ``k`` and ``delta_max`` replaced, clamped into their valid ranges
+    (``K_MARGIN <= k <= 0.5 - K_MARGIN``, ``|delta_max| <= 0.999 theta_max``): what an optimiser
+    that treats them as free variables may propose is always a valid segment."""
+    k = min(max(float(k), K_MARGIN), 0.5 - K_MARGIN)
+    lim = 0.999 * segment.theta_max
+    return Segment(segment.length, k, min(max(float(delta_max), -lim), lim), segment.theta_max)

@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 
 from apcc_graph.geometry import skew
 from apcc_graph.kinematics import apcc_transform_scalar, apcc_transform_scalar_calibration
-from apcc_graph.segment import Segment
+from apcc_graph.segment import Segment, calibrated
 
 FloatArray = NDArray[np.float64]
 
@@ -63,8 +63,6 @@ baselines the ratio would otherwise be 0/0 noise with Jacobians near 1e16."""
 SLOPE_OUTLIER = 100.0
 """A correspondence whose Sampson slope exceeds this multiple of the pair's median is ill-posed
 (near the epipole the Sampson error's denominator vanishes)."""
-_K_MARGIN = 1e-3
-"""Calibration variables are clamped to ``k in [margin, 0.5 - margin]`` inside the residual."""
 
 
 # ----------------------------------------------------------------------------------- chain
@@ -342,13 +340,8 @@ def epipolar_residual(
 def calibrated_segments(segments: Sequence[Segment], values: gtsam.Values,
                       keys: Sequence[tuple[int, int]]) -> list[Segment]:
     """Segments with k and delta_max read from the calibration variables (clamped to range)."""
-    out = []
-    for seg, (k_key, d_key) in zip(segments, keys, strict=True):
-        k = min(max(float(values.atVector(k_key)[0]), _K_MARGIN), 0.5 - _K_MARGIN)
-        lim = 0.999 * seg.theta_max
-        d = min(max(float(values.atVector(d_key)[0]), -lim), lim)
-        out.append(Segment(seg.length, k, d, seg.theta_max))
-    return out
+    return [calibrated(seg, values.atVector(k_key)[0], values.atVector(d_key)[0])
+            for seg, (k_key, d_key) in zip(segments, keys, strict=True)]
 
 
 class EpipolarFrameFactor:

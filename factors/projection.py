@@ -43,7 +43,7 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.segment import Segment
+from apcc_graph.segment import Segment, calibrated
 from factors.camera_chain import camera_poses
 from factors.track_points import (
     TrackObservations,
@@ -67,16 +67,6 @@ def calibration_key(segment: int) -> int:
     return int(gtsam.symbol("c", segment))
 
 
-K_MARGIN = 1e-3
-"""How close to its open range ``(0, 0.5)`` a calibrated ``k`` may come."""
-
-
-def calibrated(segment: Segment, k: float, delta_max: float) -> Segment:
-    """``segment`` with ``k`` and ``delta_max`` replaced, clamped into their valid ranges
-    (``K_MARGIN <= k <= 0.5 - K_MARGIN``, ``|delta_max| <= 0.999 theta_max``)."""
-    k = min(max(float(k), K_MARGIN), 0.5 - K_MARGIN)
-    lim = 0.999 * segment.theta_max
-    return Segment(segment.length, k, min(max(float(delta_max), -lim), lim), segment.theta_max)
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,7 @@ from factors.landmark import (
     landmark_key,
     observation_factors,
 )
-from factors.projection import CameraChain, ProjectionFactor
+from factors.projection import CameraChain, robust_residual_norms
 from factors.track_points import TrackObservations
 
 FloatArray = NDArray[np.float64]
@@ -137,9 +137,7 @@ class Landmarks:
         observations taken and how many of them were judged outliers."""
         first, last = int(obs.frames.min()), int(obs.frames.max())
         chain = self.chain(cam, first, last)
-        found = ProjectionFactor(obs, chain, self.robot.n_segments)
-        norms = found.residual_norms(thetas, robust=True)
-        assert found.points is not None
+        norms, points = robust_residual_norms(obs, chain, thetas, first, np.ones(len(obs)))
         weights = gnc_tls_weights(norms, self.inlier_sigmas, math.inf)
         outliers = int(np.sum(weights == 0.0))
         inliers = np.add.reduceat(weights > 0.0, obs.starts[:-1])
@@ -151,7 +149,7 @@ class Landmarks:
         piece_track = {piece: tid for tid, piece in tracks.items()}
         noise = gtsam.noiseModel.Isotropic.Sigma(3, self.prior_sigma)
         for i in keep.tolist():
-            piece, point = int(obs.ids[i]), found.points[i]
+            piece, point = int(obs.ids[i]), points[i]
             key = landmark_key(piece)
             add.values.insert(key, gtsam.Point3(*point))
             add.graph.add(gtsam.PriorFactorPoint3(key, gtsam.Point3(*point), noise))
