@@ -62,16 +62,25 @@ def _pixels(robot: Robot, sim: Simulation, thetas: np.ndarray,
     return np.concatenate(out)
 
 
+def _robot_with(robot: Robot, cal: np.ndarray) -> Robot:
+    return Robot([Segment(s.length, k, d, s.theta_max)
+                  for s, (k, d) in zip(robot.segments, cal.reshape(-1, 2), strict=True)],
+                 robot.cameras)
+
+
 def dense_fisher(robot: Robot, sim: Simulation, noise_px: float,
-                 theta0_sigma: float | None) -> np.ndarray:
-    """Fisher information of the angles from central differences of the pixel predictions in
-    (all angles, one point per camera and track id), the points eliminated exactly."""
+                 theta0_sigma: float | None,
+                 calibration_sigmas: tuple[float, float] | None = None) -> np.ndarray:
+    """Fisher information of the angles (and, with ``calibration_sigmas``, of every segment's
+    k and delta_max, after them) from central differences of the pixel predictions in (all
+    angles, [calibration,] one point per camera and track id), the points eliminated exactly."""
     seq = sim.sequence
     n_frames, S = seq.thetas.shape
     points = {c: sim.points_world[sim.landmarks[c]] for c in seq.tracks}
     h = 1e-6
     n_rows = sum(len(t) for t in seq.tracks.values())
-    Ja = np.zeros((2 * n_rows, n_frames * S))
+    n_cal = 0 if calibration_sigmas is None else 2 * S
+    Ja = np.zeros((2 * n_rows, n_frames * S + n_cal))
     for f in range(n_frames):
         for j in range(S):
             plus, minus = seq.thetas.copy(), seq.thetas.copy()
@@ -79,6 +88,14 @@ def dense_fisher(robot: Robot, sim: Simulation, noise_px: float,
             minus[f, j] -= h
             Ja[:, f * S + j] = (_pixels(robot, sim, plus, points)
                                 - _pixels(robot, sim, minus, points)) / (2 * h)
+    cal = np.array([[s.k, s.delta_max] for s in robot.segments]).ravel()
+    for c in range(n_cal):
+        plus, minus = cal.copy(), cal.copy()
+        plus[c] += h
+        minus[c] -= h
+        Ja[:, n_frames * S + c] = (_pixels(_robot_with(robot, plus), sim, seq.thetas, points)
+                                   - _pixels(_robot_with(robot, minus), sim, seq.thetas,
+                                             points)) / (2 * h)
     # Point columns: (camera, track id) -> 3 columns; each row sees its own track's point only,
     # so all points move at once per axis.
     row_point, n_points = [], 0
@@ -110,6 +127,10 @@ def dense_fisher(robot: Robot, sim: Simulation, noise_px: float,
         info -= QJ.T @ QJ
     if theta0_sigma is not None:
         info[np.arange(S), np.arange(S)] += 1.0 / theta0_sigma**2
+    if calibration_sigmas is not None:
+        D0 = n_frames * S
+        info[D0 + np.arange(n_cal), D0 + np.arange(n_cal)] += np.tile(
+            1.0 / np.asarray(calibration_sigmas) ** 2, S)
     return info
 
 
@@ -245,10 +266,6 @@ def test_rms_and_window_rms_by_hand() -> None:
 
 
 # ------------------------------------------------------------------ unknown segment models
-def _robot_with(robot: Robot, cal: np.ndarray) -> Robot:
-    return Robot([Segment(s.length, k, d, s.theta_max)
-                  for s, (k, d) in zip(robot.segments, cal.reshape(-1, 2), strict=True)],
-                 robot.cameras)
 
 
 def test_calibration_information_is_the_dense_numerical_one(robot: Robot) -> None:
@@ -256,56 +273,13 @@ def test_calibration_information_is_the_dense_numerical_one(robot: Robot) -> Non
     of the pixel predictions in each segment's (k, delta_max), points eliminated exactly."""
     sim = simulate(robot, 8, noise_px=1.0, seed=3, scene="room", n_points=300,
                    moving_base=True, spatial=True)
-    seq = sim.sequence
     S, D0 = 3, 8 * 3
     sigmas = (0.05, math.radians(5.0))
     info = fisher_information(sim, 1.0, PRIOR, calibration_sigmas=sigmas)
     assert info.shape == (D0 + 2 * S,) * 2
     np.testing.assert_allclose(info[:D0, :D0], fisher_information(sim, 1.0, PRIOR),
                                rtol=0, atol=1e-9 * np.abs(info).max())
-    # Dense: angle columns as in dense_fisher, plus calibration columns.
-    points = {c: sim.points_world[sim.landmarks[c]] for c in seq.tracks}
-    cal = np.array([[s.k, s.delta_max] for s in robot.segments]).ravel()
-    h = 1e-6
-    J = []
-    for f in range(8):
-        for j in range(S):
-            plus, minus = seq.thetas.copy(), seq.thetas.copy()
-            plus[f, j] += h
-            minus[f, j] -= h
-            J.append((_pixels(robot, sim, plus, points) - _pixels(robot, sim, minus, points))
-                     / (2 * h))
-    for c in range(2 * S):
-        plus, minus = cal.copy(), cal.copy()
-        plus[c] += h
-        minus[c] -= h
-        J.append((_pixels(_robot_with(robot, plus), sim, seq.thetas, points)
-                  - _pixels(_robot_with(robot, minus), sim, seq.thetas, points)) / (2 * h))
-    Ja = np.array(J).T
-    row_point, n_points = [], 0
-    for tracks in seq.tracks.values():
-        ids, index = np.unique(tracks.track_ids, return_inverse=True)
-        row_point.append(n_points + index)
-        n_points += len(ids)
-    row_point = np.repeat(np.concatenate(row_point), 2)
-    want = Ja.T @ Ja
-    for p in np.unique(row_point):  # eliminate each point: its projector, from its own rows
-        rows = row_point == p
-        Jp = np.zeros((rows.sum(), 3))
-        for a in range(3):
-            plus = {c: q.copy() for c, q in points.items()}
-            minus = {c: q.copy() for c, q in points.items()}
-            for c in points:
-                plus[c][:, a] += h
-                minus[c][:, a] -= h
-            Jp[:, a] = ((_pixels(robot, sim, seq.thetas, plus)
-                         - _pixels(robot, sim, seq.thetas, minus)) / (2 * h))[rows]
-        U, s, _ = np.linalg.svd(Jp, full_matrices=False)
-        QJ = U[:, s > 1e-9 * s.max()].T @ Ja[rows]
-        want -= QJ.T @ QJ
-    want[np.arange(S), np.arange(S)] += 1.0 / PRIOR**2
-    want[D0 + np.arange(2 * S), D0 + np.arange(2 * S)] += np.tile(
-        1.0 / np.asarray(sigmas) ** 2, S)
+    want = dense_fisher(robot, sim, 1.0, PRIOR, calibration_sigmas=sigmas)
     np.testing.assert_allclose(info, want, rtol=0, atol=1e-5 * np.abs(want).max())
 
 
