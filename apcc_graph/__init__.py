@@ -3,6 +3,12 @@
 APCC 2L-5R kinematics (two rigid links and five revolute joints per segment), deviation
 calibration, a 1-point generalized-epipolar front end and a GTSAM factor-graph back end.
 
+The package is a stack of layers, each a subpackage that imports only the ones before it:
+``model`` (the robot's maths), ``io`` (file formats), ``frontend`` (two-view geometry, the
+1-point solver, tracking), ``calibration``, ``simulation``, then the top-level ``factors``
+package (GTSAM factors), ``estimation`` (chain, batch, smoothers), ``evaluation`` (accuracy and
+the Cramér-Rao bounds), ``bench``, ``plots`` and ``cli``. ``tests/test_layers.py`` checks it.
+
 Public names are re-exported lazily (module-level ``__getattr__``) so that importing a submodule,
 or the ``factors`` package, never pulls in the estimators.
 """
@@ -15,24 +21,24 @@ from typing import Any
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "Segment": "apcc_graph.segment",
-    "TipCamera": "apcc_graph.camera",
-    "Robot": "apcc_graph.robot",
-    "load_robot": "apcc_graph.robot",
-    "save_robot": "apcc_graph.robot",
-    "pcc_transform": "apcc_graph.kinematics",
-    "apcc_transform": "apcc_graph.kinematics",
-    "calibrate_from_tip": "apcc_graph.calibration",
-    "fit_segment": "apcc_graph.calibration",
-    "estimate": "apcc_graph.api",
+    "Segment": "apcc_graph.model.segment",
+    "TipCamera": "apcc_graph.model.camera",
+    "Robot": "apcc_graph.model.robot",
+    "load_robot": "apcc_graph.io.robot_file",
+    "save_robot": "apcc_graph.io.robot_file",
+    "pcc_transform": "apcc_graph.model.kinematics",
+    "apcc_transform": "apcc_graph.model.kinematics",
+    "calibrate_from_tip": "apcc_graph.calibration.fit",
+    "fit_segment": "apcc_graph.calibration.fit",
+    "estimate": "apcc_graph.estimation.methods",
     "Estimate": "apcc_graph.estimation.result",
     "FixedLagSmoother": "apcc_graph.estimation.smoother",
     "ProjectionFixedLagSmoother": "apcc_graph.estimation.projection_smoother",
     "GraphOptions": "apcc_graph.estimation.options",
-    "FrameObservations": "apcc_graph.sequence",
-    "Sequence": "apcc_graph.sequence",
-    "load_sequence": "apcc_graph.io",
-    "save_sequence": "apcc_graph.io",
+    "FrameObservations": "apcc_graph.model.sequence",
+    "Sequence": "apcc_graph.model.sequence",
+    "load_sequence": "apcc_graph.io.sequence_folder",
+    "save_sequence": "apcc_graph.io.sequence_folder",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]

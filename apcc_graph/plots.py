@@ -25,10 +25,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from apcc_graph.kinematics import apcc_joint_frames, pcc_in_plane
-from apcc_graph.robot import Robot
+from apcc_graph.model.kinematics import apcc_joint_frames, pcc_in_plane
+from apcc_graph.model.robot import Robot
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -37,7 +37,6 @@ if TYPE_CHECKING:
     from apcc_graph.bench.accuracy import AccuracyBenchmark
     from apcc_graph.bench.calibration import CalibrationBenchmark
 
-FloatArray = NDArray[np.float64]
 
 
 def _figure(rows: int, cols: int, size: tuple[float, float], **kwargs: object) -> tuple:

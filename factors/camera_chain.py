@@ -5,7 +5,7 @@ Camera ``c`` rides on segment ``c`` (0-based). At frame ``f``, with the base pos
     world_T_cam(f) = world_T_base(f) . T_0(theta_f0) ... T_c(theta_fc) . tip_T_cam
 
 where ``T_j`` is the APCC 2L-5R transform ``base_T_tip`` of segment j
-(:func:`apcc_graph.kinematics.apcc_transform`). The derivatives are matrix derivatives,
+(:func:`apcc_graph.model.kinematics.apcc_transform`). The derivatives are matrix derivatives,
 ``d world_T_cam / d theta_fj = P_j . dT_j . S_j+1`` with the prefix ``P_j = world_T_base T_0 ...
 T_j-1`` and the suffix ``S_j+1 = T_j+1 ... T_c tip_T_cam``; their bottom rows are zero. Units:
 metres and radians.
@@ -16,16 +16,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from apcc_graph.kinematics import (
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import (
     apcc_transform,
     apcc_transform_calibration_derivative,
     apcc_transform_derivative,
 )
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.segment import Segment
 
 
 def camera_poses(

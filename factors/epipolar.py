@@ -15,7 +15,7 @@ the residual rather than as a soft constraint; the graph is 7x smaller and needs
 initialisation. The robot base poses ``world_T_base`` are known inputs (identity for a fixed base).
 
 Residual (paper section IV; docs/estimation.md, "Two frames"): per correspondence, the Sampson error
-of unit bearings ``e`` (radians on the bearings' tangent planes, :mod:`apcc_graph.geometry`),
+of unit bearings ``e`` (radians on the bearings' tangent planes, :mod:`apcc_graph.frontend.geometry`),
 whitened by ``sigma`` (radians; pixel noise / focal length): ``r = e / sigma``, dimensionless.
 Robust loss per correspondence: gtsam's robust noise models reweight a whole factor by one
 weight, so the factor applies the m-estimator weight ``w(r_k)`` of each correspondence itself,
@@ -33,7 +33,7 @@ Two groupings of the same residual:
 Jacobians: analytic. The Sampson error's gradient with respect to the essential matrix,
 ``G = d e / d E`` (3x3 per correspondence), is contracted with ``d E / d x`` for each variable x
 (from the matrix derivatives of the segment transforms,
-:func:`apcc_graph.kinematics.apcc_transform_scalar` and its calibration derivatives). The
+:func:`apcc_graph.model.kinematics.apcc_transform_scalar` and its calibration derivatives). The
 tangent space of Vector1 is the identity, so GTSAM's right-hand convention ``x + dx`` is plain
 addition.
 """
@@ -48,11 +48,10 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.geometry import skew
-from apcc_graph.kinematics import apcc_transform_scalar, apcc_transform_scalar_calibration
-from apcc_graph.segment import Segment, calibrated
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.frontend.geometry import skew
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import apcc_transform_scalar, apcc_transform_scalar_calibration
+from apcc_graph.model.segment import Segment, calibrated
 
 ROBUST_LOSSES = ("huber", "cauchy", "none")
 _TINY = 1e-300

@@ -3,7 +3,7 @@
 Variables: ``world_T_base`` and ``world_T_tip`` (``gtsam.Pose3``; rotation in radians, translation
 in metres, both poses map points in their frame to the world frame) and the bending angle
 ``theta`` (a Vector1 value, radians). The segment's APCC 2L-5R transform ``base_T_tip(theta; psi)``
-is :func:`apcc_graph.kinematics.apcc_transform` (docs/estimation.md, "The robot"; paper III.B eq.
+is :func:`apcc_graph.model.kinematics.apcc_transform` (docs/estimation.md, "The robot"; paper III.B eq.
 2-5), with a fixed bending-plane angle ``psi`` (radians).
 
 Residual, in the tangent space of Pose3 at the measured tip (GTSAM order ``(omega, v)``: radians,
@@ -19,7 +19,7 @@ in metres, in the tip frame).
 Jacobian convention: GTSAM's right-hand perturbation, ``T . Exp(d)`` for the poses (the tangent
 ``d`` in the pose's own frame) and ``theta + d`` for the angle. With ``A = base_T_tip(theta)``,
 ``xi`` its body twist (``A(theta + e) = A(theta) Exp(e xi) + O(e^2)``,
-:func:`apcc_graph.kinematics.apcc_body_twists`), ``Ad`` the adjoint map and ``J_r^-1`` the inverse
+:func:`apcc_graph.model.kinematics.apcc_body_twists`), ``Ad`` the adjoint map and ``J_r^-1`` the inverse
 right Jacobian of SE(3) (``gtsam.Pose3.LogmapDerivative``, ``Log(E Exp(d)) = r + J_r^-1(r) d``)::
 
     H_base  =  J_r^-1(r) . Ad(A^-1)      since  T_tip^-1 T_base Exp(d) A = E Exp(Ad(A^-1) d)
@@ -45,12 +45,10 @@ from collections.abc import Sequence
 
 import gtsam
 import numpy as np
-from numpy.typing import NDArray
 
-from apcc_graph.kinematics import apcc_transform_scalar
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import apcc_transform_scalar
+from apcc_graph.model.segment import Segment
 
 KinematicResidual = tuple[FloatArray, FloatArray | None, FloatArray | None, FloatArray | None]
 
@@ -59,7 +57,7 @@ def _transform_and_twist(theta: float, segment: Segment,
                          psi: float) -> tuple[FloatArray, FloatArray]:
     """``A = base_T_tip(theta)`` and its body twist ``xi = vee(A^-1 dA/dtheta)``, ``(omega, v)``.
 
-    Same values as :func:`apcc_graph.kinematics.apcc_body_twists`, from the scalar fast path.
+    Same values as :func:`apcc_graph.model.kinematics.apcc_body_twists`, from the scalar fast path.
     """
     A, dA = apcc_transform_scalar(theta, segment, psi)
     Rt = A[:3, :3].T

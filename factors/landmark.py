@@ -37,9 +37,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.model.arrays import FloatArray
 from factors.projection import CameraChain, frame_key
-
-FloatArray = NDArray[np.float64]
 
 MAX_CAMERAS = 64
 """Camera-pose keys pack the camera into the symbol's index: at most this many cameras."""

@@ -43,7 +43,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.segment import Segment, calibrated
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.segment import Segment, calibrated
 from factors.camera_chain import camera_poses
 from factors.track_points import (
     TrackObservations,
@@ -52,8 +53,6 @@ from factors.track_points import (
     segment_sum,
     triangulate_rows,
 )
-
-FloatArray = NDArray[np.float64]
 
 
 def frame_key(frame: int) -> int:

@@ -31,8 +31,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from apcc_graph.model.arrays import FloatArray, IntArray
 
 MIN_DEPTH = 0.02
 """Metres: a point closer than this in front of a camera it is seen from is not a valid point."""

@@ -9,8 +9,8 @@ import pytest
 
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
-from apcc_graph.robot import load_robot
-from apcc_graph.simulate import simulate_sequence
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.simulation.simulator import simulate_sequence
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 

@@ -11,11 +11,11 @@ import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.calibration import calibrate_from_tip, fit_segment, fit_thetas
-from apcc_graph.calibration_file import calibrate_measurements, load_tip_measurements
-from apcc_graph.kinematics import apcc_in_plane, pcc_in_plane
-from apcc_graph.planar_curves import growing_curvature_tip
-from apcc_graph.segment import Segment
+from apcc_graph.calibration.fit import calibrate_from_tip, fit_segment, fit_thetas
+from apcc_graph.calibration.files import calibrate_measurements, load_tip_measurements
+from apcc_graph.model.kinematics import apcc_in_plane, pcc_in_plane
+from apcc_graph.simulation.planar_curves import growing_curvature_tip
+from apcc_graph.model.segment import Segment
 
 
 def paper_tip() -> tuple[float, float]:

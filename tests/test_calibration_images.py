@@ -18,9 +18,9 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.calibration import calibrate_from_tip
-from apcc_graph.calibration_file import TipMeasurements, calibrate_measurements
-from apcc_graph.calibration_images import (
+from apcc_graph.calibration.fit import calibrate_from_tip
+from apcc_graph.calibration.files import TipMeasurements, calibrate_measurements
+from apcc_graph.calibration.photos import (
     CalibrationImagesSetup,
     MarkerLayout,
     TipPose,
@@ -36,17 +36,17 @@ from apcc_graph.calibration_images import (
     setup_to_toml,
     tip_from_marker_poses,
 )
-from apcc_graph.camera import TipCamera
+from apcc_graph.model.camera import TipCamera
 from apcc_graph.cli import main
-from apcc_graph.kinematics import apcc_in_plane
-from apcc_graph.render_calibration import (
+from apcc_graph.model.kinematics import apcc_in_plane
+from apcc_graph.simulation.calibration_photos import (
     DEFAULT_CAMERA,
     render_calibration_image,
     side_camera_pose,
     write_calibration_images,
 )
-from apcc_graph.robot import load_robot
-from apcc_graph.segment import Segment
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.segment import Segment
 
 REPO = Path(__file__).resolve().parents[1]
 SWEEP = REPO / "data/calibration/images_sweep"

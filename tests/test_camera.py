@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.camera import OPENCV_DISTORTION_SIZES, TipCamera, validate_pose
+from apcc_graph.model.camera import OPENCV_DISTORTION_SIZES, TipCamera, validate_pose
 
 DISTORTION = (-0.2, 0.05, 1e-3, -1e-3)
 BASE = {"fx": 500.0, "fy": 510.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480}

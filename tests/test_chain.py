@@ -10,10 +10,11 @@ import pytest
 
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.kinematics import apcc_transform
-from apcc_graph.robot import Robot, load_robot
-from apcc_graph.sequence import Sequence
-from apcc_graph.simulate import simulate, simulate_sequence
+from apcc_graph.model.kinematics import apcc_transform
+from apcc_graph.model.robot import Robot
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.sequence import Sequence
+from apcc_graph.simulation.simulator import simulate, simulate_sequence
 
 ROBOT_FILE = Path(__file__).resolve().parents[1] / "data" / "robots" / "planar_three.toml"
 N_FRAMES = 40

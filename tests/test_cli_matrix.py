@@ -137,7 +137,7 @@ def test_every_subcommand_has_help_with_an_example() -> None:
 
 
 def test_estimate_calibrate_writes_the_calibrated_robot(tmp_path: Path, capsys) -> None:
-    from apcc_graph.robot import load_robot
+    from apcc_graph.io.robot_file import load_robot
 
     out = tmp_path / "est"
     assert main(["estimate", str(SAMPLE), "--method", "batch", "--calibrate", "--out",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from apcc_graph.cli import main
-from apcc_graph.io import load_sequence
+from apcc_graph.io.sequence_folder import load_sequence
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = str(REPO / "data/robots/planar_three.toml")

@@ -1,4 +1,4 @@
-"""Tests of apcc_graph.csv_table: numeric CSV tables whose errors name file, line and column."""
+"""Tests of apcc_graph.io.csv_table: numeric CSV tables whose errors name file, line and column."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from apcc_graph.csv_table import CsvTable, format_number, read_header, read_table
+from apcc_graph.io.csv_table import CsvTable, format_number, read_header, read_table
 
 NAMES = ["a", "b", "c"]
 

@@ -11,11 +11,11 @@ import pytest
 
 import apcc_graph
 from apcc_graph.cli import main
-from apcc_graph.estimate_io import load_theta_csv, save_estimate
-from apcc_graph.evaluation import compare
-from apcc_graph.io import save_sequence
-from apcc_graph.robot import load_robot
-from apcc_graph.simulate import simulate_sequence
+from apcc_graph.io.estimates import load_theta_csv, save_estimate
+from apcc_graph.evaluation.accuracy import compare
+from apcc_graph.io.sequence_folder import save_sequence
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.simulation.simulator import simulate_sequence
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 
@@ -34,7 +34,7 @@ def test_estimate_dispatches_and_refuses_unknown_methods(sequence) -> None:
 
 def test_estimator_never_reads_the_truth(sequence) -> None:
     """Same result whether or not the sequence carries ground truth."""
-    from apcc_graph.sequence import Sequence
+    from apcc_graph.model.sequence import Sequence
 
     blind = Sequence(sequence.robot, sequence.timestamps, sequence.tracks,
                      world_T_base=sequence.world_T_base)

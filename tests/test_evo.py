@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from apcc_graph import estimate
-from apcc_graph.estimate_io import save_estimate
-from apcc_graph.io import load_sequence
+from apcc_graph.io.estimates import save_estimate
+from apcc_graph.io.sequence_folder import load_sequence
 
 file_interface = pytest.importorskip("evo.tools.file_interface")
 

@@ -12,13 +12,13 @@ import pytest
 from helpers import random_pose
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.kinematics import (
+from apcc_graph.model.kinematics import (
     apcc_transform,
     apcc_transform_derivative,
     apcc_transform_scalar,
 )
-from apcc_graph.robot import load_robot
-from apcc_graph.simulate import simulate
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.simulation.simulator import simulate
 from factors.epipolar import (
     epipolar_factor,
     epipolar_frame_factor,

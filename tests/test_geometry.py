@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from helpers import random_pose
 
-from apcc_graph.camera import TipCamera
-from apcc_graph.geometry import (
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.frontend.geometry import (
     SegmentTwoView,
     epipolar_errors,
     essential_matrix,
@@ -18,9 +18,9 @@ from apcc_graph.geometry import (
     sampson_error,
     skew,
 )
-from apcc_graph.kinematics import apcc_transform
-from apcc_graph.robot import Robot
-from apcc_graph.segment import Segment
+from apcc_graph.model.kinematics import apcc_transform
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
 
 FOCAL = 500.0
 

@@ -1,4 +1,4 @@
-"""Tests of the sequence folder format (docs/formats.md): apcc_graph.io.
+"""Tests of the sequence folder format (docs/formats.md): apcc_graph.io.sequence_folder.
 
 Round trips (equality and byte-for-byte stability), the shipped sample and its seeded
 regeneration, every validation error (file, line and column named), dropped pixels, atomic and
@@ -18,10 +18,11 @@ import pytest
 
 from apcc_graph import atomic_write
 from apcc_graph.cli import main
-from apcc_graph.io import SequenceWarning, load_sequence, save_sequence
-from apcc_graph.robot import Robot, load_robot
-from apcc_graph.sequence import Sequence, Tracks
-from apcc_graph.simulate import simulate_sequence
+from apcc_graph.io.sequence_folder import SequenceWarning, load_sequence, save_sequence
+from apcc_graph.model.robot import Robot
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.sequence import Sequence, Tracks
+from apcc_graph.simulation.simulator import simulate_sequence
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT_FILE = REPO / "data" / "robots" / "planar_three.toml"

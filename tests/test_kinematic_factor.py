@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from apcc_graph import Segment
-from apcc_graph.kinematics import apcc_body_twists, apcc_transform
+from apcc_graph.model.kinematics import apcc_body_twists, apcc_transform
 from factors.kinematic import (
     _transform_and_twist,
     kinematic_factor,

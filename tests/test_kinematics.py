@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.kinematics import (
+from apcc_graph.model.kinematics import (
     apcc_body_twists,
     apcc_joint_frames,
     apcc_phi,
@@ -20,7 +20,7 @@ from apcc_graph.kinematics import (
     pcc_transform,
     sinc,
 )
-from apcc_graph.segment import Segment
+from apcc_graph.model.segment import Segment
 
 STRAIGHT = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0.5], [0, 0, 0, 1.0]])
 

@@ -10,12 +10,12 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.kinematics import (
+from apcc_graph.model.kinematics import (
     apcc_transform,
     apcc_transform_scalar,
     apcc_transform_scalar_calibration,
 )
-from apcc_graph.segment import Segment
+from apcc_graph.model.segment import Segment
 
 STEP = 1e-6
 """Central-difference step in k and delta_max (truncation ~STEP^2, rounding ~1e-16/STEP)."""

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from apcc_graph.kinematics import pcc_in_plane
-from apcc_graph.planar_curves import growing_curvature_tip
+from apcc_graph.model.kinematics import pcc_in_plane
+from apcc_graph.simulation.planar_curves import growing_curvature_tip
 
 
 def test_zero_growth_is_constant_curvature() -> None:

@@ -19,7 +19,7 @@ from apcc_graph.plots import (
     save_figure,
     tip_trajectories_figure,
 )
-from apcc_graph.robot import load_robot
+from apcc_graph.io.robot_file import load_robot
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = load_robot(REPO / "data/robots/planar_three.toml")

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.simulate import simulate
+from apcc_graph.simulation.simulator import simulate
 from factors.camera_chain import camera_poses
 from factors.projection import (
     CameraChain,

@@ -34,10 +34,11 @@ from apcc_graph.estimation.projection_smoother import (
     projection_smoother_estimate,
 )
 from apcc_graph.estimation.smoother import SmootherFrame, smoother_estimate
-from apcc_graph.robot import Robot, load_robot
-from apcc_graph.sequence import FrameObservations, Sequence
-from apcc_graph.sequence_bound import sequence_bound
-from apcc_graph.simulate import Simulation, simulate
+from apcc_graph.model.robot import Robot
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.sequence import FrameObservations, Sequence
+from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.simulation.simulator import Simulation, simulate
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "data/robots/planar_three.toml"

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.kinematics import apcc_transform
-from apcc_graph.robot import _CHUNK
+from apcc_graph.model.kinematics import apcc_transform
+from apcc_graph.model.robot import _CHUNK
 
 SEGMENTS = [
     Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),

@@ -13,10 +13,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from apcc_graph import atomic_write
-from apcc_graph.camera import TipCamera
-from apcc_graph.robot import Robot, load_robot, save_robot
-from apcc_graph.robot_file import ROBOT_FORMAT, robot_to_toml
-from apcc_graph.segment import Segment
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.robot import Robot
+from apcc_graph.io.robot_file import load_robot, save_robot
+from apcc_graph.io.robot_file import ROBOT_FORMAT, robot_to_toml
+from apcc_graph.model.segment import Segment
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER_SINGLE = REPO / "data" / "robots" / "paper_single.toml"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from apcc_graph import Segment
-from apcc_graph.segment import DEFAULT_THETA_MAX
+from apcc_graph.model.segment import DEFAULT_THETA_MAX
 
 
 def test_defaults_and_link_lengths() -> None:

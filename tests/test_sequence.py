@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.sequence import Sequence, Tracks
+from apcc_graph.model.sequence import Sequence, Tracks
 
 CAM = TipCamera(500.0, 500.0, 320.0, 240.0, 640, 480)
 DISTORTED = TipCamera(480.0, 490.0, 315.0, 245.0, 640, 480, distortion=(-0.2, 0.05, 1e-3, -1e-3))

@@ -12,9 +12,9 @@ import pytest
 from helpers import random_pose
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.sequence import Sequence, Tracks
-from apcc_graph.sequence_bound import SequenceBound, fisher_information, sequence_bound
-from apcc_graph.simulate import Simulation, simulate
+from apcc_graph.model.sequence import Sequence, Tracks
+from apcc_graph.evaluation.sequence_bound import SequenceBound, fisher_information, sequence_bound
+from apcc_graph.simulation.simulator import Simulation, simulate
 
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
             Segment(0.3, k=0.3, delta_max=-0.05, theta_max=1.0),

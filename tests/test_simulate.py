@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.simulate import simulate, simulate_sequence
+from apcc_graph.simulation.simulator import simulate, simulate_sequence
 
 CAM = TipCamera(500.0, 500.0, 320.0, 240.0, 640, 480)
 DISTORTED = TipCamera(480.0, 490.0, 315.0, 245.0, 640, 480, distortion=(-0.1, 0.02, 0.0, 0.0))

@@ -15,13 +15,14 @@ import pytest
 
 import apcc_graph
 from apcc_graph.cli import main
-from apcc_graph.estimate_io import load_theta_csv
+from apcc_graph.io.estimates import load_theta_csv
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother, SmootherFrame, smoother_estimate
-from apcc_graph.io import save_sequence
-from apcc_graph.robot import Robot, load_robot
-from apcc_graph.sequence import FrameObservations, Sequence
-from apcc_graph.simulate import simulate, simulate_sequence
+from apcc_graph.io.sequence_folder import save_sequence
+from apcc_graph.model.robot import Robot
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.sequence import FrameObservations, Sequence
+from apcc_graph.simulation.simulator import simulate, simulate_sequence
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "data/robots/planar_three.toml"

@@ -100,9 +100,9 @@ def test_bad_images_are_refused_with_the_frame_named() -> None:
 @pytest.fixture()
 def image_folder(tmp_path):
     """A 6-frame sequence folder whose camera 1 images pan across a texture (no tracks yet)."""
-    from apcc_graph.io import save_sequence
-    from apcc_graph.robot import load_robot
-    from apcc_graph.sequence import Sequence
+    from apcc_graph.io.sequence_folder import save_sequence
+    from apcc_graph.io.robot_file import load_robot
+    from apcc_graph.model.sequence import Sequence
 
     robot = load_robot(ROBOT)
     source = tmp_path / "source"
@@ -121,7 +121,7 @@ def image_folder(tmp_path):
 
 def test_track_sequence_writes_tracks_that_load_back(image_folder) -> None:
     from apcc_graph.frontend.tracking import track_sequence
-    from apcc_graph.io import load_sequence
+    from apcc_graph.io.sequence_folder import load_sequence
 
     written = track_sequence(image_folder)
     assert written == [image_folder / "tracks" / "cam_1.csv"]

@@ -1,7 +1,7 @@
 """``apcc-graph bench calibration``: APCC sweep fit vs the paper's one-pose method vs PCC.
 
 A synthetic sweep of a rod whose curvature grows along the arc
-(:func:`apcc_graph.planar_curves.growing_curvature_tip`), measured with Gaussian noise on the tip
+(:func:`apcc_graph.simulation.planar_curves.growing_curvature_tip`), measured with Gaussian noise on the tip
 position and angle. Each model is fitted to the noisy poses and its tip is compared with the true
 (noise-free) tip at every pose: RMS position error (metres) and RMS tip-angle error (radians).
 """
@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apcc_graph.calibration import calibrate_from_tip, fit_segment, fit_thetas
-from apcc_graph.kinematics import apcc_in_plane, pcc_in_plane
-from apcc_graph.planar_curves import growing_curvature_tip
-from apcc_graph.segment import Segment
+from apcc_graph.calibration.fit import calibrate_from_tip, fit_segment, fit_thetas
+from apcc_graph.model.kinematics import apcc_in_plane, pcc_in_plane
+from apcc_graph.model.segment import Segment
+from apcc_graph.simulation.planar_curves import growing_curvature_tip
 
 
 @dataclass(frozen=True)

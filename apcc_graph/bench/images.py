@@ -1,11 +1,11 @@
 """``apcc-graph bench images``: the whole pipeline on pixels, images -> tracks -> smoother.
 
-For each seed, one simulated motion of the robot in the textured room (:mod:`apcc_graph.render`)
+For each seed, one simulated motion of the robot in the textured room (:mod:`apcc_graph.simulation.render`)
 is observed twice:
 
 - **images**: every tip camera's view rendered (scikit-image textures, sensor noise), tracked by
   :class:`~apcc_graph.frontend.tracking.KLTTracker`, then estimated;
-- **simulated 1 px tracks** (the peer): :func:`~apcc_graph.simulate.simulate` of the same motion
+- **simulated 1 px tracks** (the peer): :func:`~apcc_graph.simulation.simulator.simulate` of the same motion
   with its point room and 1 px Gaussian pixel noise, estimated the same way.
 
 Both go through the same estimator (the fixed-lag smoother, and the chain for reference), started
@@ -25,10 +25,11 @@ import numpy as np
 
 import apcc_graph
 from apcc_graph.frontend.tracking import track_images
-from apcc_graph.render import SensorModel, render_images, textured_room
-from apcc_graph.robot import Robot, load_robot
-from apcc_graph.sequence import Sequence
-from apcc_graph.simulate import simulate
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence
+from apcc_graph.simulation.render import SensorModel, render_images, textured_room
+from apcc_graph.simulation.simulator import simulate
 
 ROBOT = Path(__file__).resolve().parents[2] / "data" / "robots" / "planar_three.toml"
 METHODS = ("smoother", "chain")

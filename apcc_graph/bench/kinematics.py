@@ -4,7 +4,7 @@ Measured in one run on the same random configurations of the three-segment plana
 
 - ``Robot.forward`` (planar: psi absent) and ``Robot.forward`` with psi (spatial), 10^6 frames;
 - peer ``joint-by-joint matmul``: the five-joint chain as stacked 4x4 ``numpy.matmul`` products
-  (:func:`apcc_graph.kinematics.apcc_joint_frames`), the direct way to vectorise the model;
+  (:func:`apcc_graph.model.kinematics.apcc_joint_frames`), the direct way to vectorise the model;
 - peer ``gtsam.Pose3 loop``: a Python loop composing ``gtsam.Pose3`` per frame and segment.
 
 Peers run on fewer frames (they are slow) and are compared per frame.
@@ -18,8 +18,8 @@ import gtsam
 import numpy as np
 
 from apcc_graph.bench import best_time
-from apcc_graph.kinematics import apcc_in_plane, apcc_joint_frames
-from apcc_graph.robot import Robot
+from apcc_graph.model.kinematics import apcc_in_plane, apcc_joint_frames
+from apcc_graph.model.robot import Robot
 
 
 @dataclass(frozen=True)

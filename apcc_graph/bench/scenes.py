@@ -9,11 +9,10 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.camera import TipCamera
-from apcc_graph.geometry import relative_camera_pose
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.frontend.geometry import relative_camera_pose
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.segment import Segment
 
 
 @dataclass(frozen=True)

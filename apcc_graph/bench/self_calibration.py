@@ -9,7 +9,7 @@ seed, in one run:
   ``calibrate=True`` (priors of ``(0.05, 5 deg)`` around the wrong values): RMS error per
   segment;
 - the bound of the angles with the models known, and with them unknown (the same priors):
-  :func:`apcc_graph.sequence_bound.sequence_bound` with ``calibration_sigmas``, which also
+  :func:`apcc_graph.evaluation.sequence_bound.sequence_bound` with ``calibration_sigmas``, which also
   bounds each k and delta_max;
 - the calibrated k and delta_max, their errors, reported sigmas and bound.
 
@@ -29,10 +29,11 @@ from tqdm import tqdm
 
 from apcc_graph.bench.smoother import NOISE_PX, ROBOT_FILE, THETA0_SIGMA, _simulate
 from apcc_graph.estimation.batch import batch_estimate
-from apcc_graph.robot import Robot, load_robot
-from apcc_graph.segment import Segment
-from apcc_graph.sequence import Sequence
-from apcc_graph.sequence_bound import sequence_bound
+from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
+from apcc_graph.model.sequence import Sequence
 
 CALIBRATION_SIGMAS = (0.05, math.radians(5.0))
 

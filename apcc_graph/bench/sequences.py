@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from apcc_graph.bench import best_time
-from apcc_graph.io import load_sequence, save_sequence
-from apcc_graph.robot import Robot
-from apcc_graph.simulate import simulate
+from apcc_graph.io.sequence_folder import load_sequence, save_sequence
+from apcc_graph.model.robot import Robot
+from apcc_graph.simulation.simulator import simulate
 
 
 @dataclass(frozen=True)

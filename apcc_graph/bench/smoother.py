@@ -6,10 +6,10 @@ frame), 1 px noise, 10% and 30% outliers, 30 fps, smooth motion, several seeds. 
 estimator starts from the true first configuration with a 0.1 deg prior (the chain starts
 exactly there). Every figure is measured here, in the same run:
 
-- the Cramer-Rao bound of each sequence (:mod:`apcc_graph.sequence_bound`: every observation
+- the Cramer-Rao bound of each sequence (:mod:`apcc_graph.evaluation.sequence_bound`: every observation
   once, each track's point a nuisance, 0.1 deg start prior), per segment and per 100-frame
   window;
-- the bound of a fixed-lag smoother (:func:`apcc_graph.sequence_bound.lag_bound`): a smoother
+- the bound of a fixed-lag smoother (:func:`apcc_graph.evaluation.sequence_bound.lag_bound`): a smoother
   lets frame f go after frame f + lag, so no later observation can inform its final
   estimate; sampled every 30 frames, beside the smoothers;
 - accuracy: RMS error per segment of the paper's chain, the fixed-lag smoother (lag 1 s,
@@ -42,10 +42,11 @@ from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.robot import Robot, load_robot
-from apcc_graph.sequence import Sequence
-from apcc_graph.sequence_bound import lag_bound, sequence_bound
-from apcc_graph.simulate import Simulation, simulate
+from apcc_graph.evaluation.sequence_bound import lag_bound, sequence_bound
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence
+from apcc_graph.simulation.simulator import Simulation, simulate
 
 ROBOT_FILE = Path(__file__).resolve().parents[2] / "data" / "robots" / "planar_three.toml"
 FPS = 30.0

@@ -41,12 +41,12 @@ from apcc_graph.estimation.graph import (
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.robust import gnc_start
-from apcc_graph.robot import Robot
-from apcc_graph.segment import Segment
-from apcc_graph.sequence import Sequence
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
+from apcc_graph.model.sequence import Sequence
 from factors.projection import calibrated, calibration_key
 
-FloatArray = NDArray[np.float64]
 INITS = ("smoother", "chain")
 
 

@@ -20,9 +20,9 @@ from numpy.typing import ArrayLike
 from tqdm import tqdm
 
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.kinematics import apcc_transform
-from apcc_graph.sequence import Sequence
-from apcc_graph.solvers import one_point_ransac
+from apcc_graph.frontend.one_point import one_point_ransac
+from apcc_graph.model.kinematics import apcc_transform
+from apcc_graph.model.sequence import Sequence
 
 
 def chain_estimate(

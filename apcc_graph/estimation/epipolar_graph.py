@@ -29,8 +29,8 @@ import gtsam
 import numpy as np
 
 from apcc_graph.estimation.options import GraphOptions, loss_scale, reuse_factor
-from apcc_graph.geometry import SegmentTwoView, epipolar_errors
-from apcc_graph.sequence import Sequence
+from apcc_graph.frontend.geometry import SegmentTwoView, epipolar_errors
+from apcc_graph.model.sequence import Sequence
 from factors.epipolar import SLOPE_OUTLIER, epipolar_frame_factor
 from factors.priors import angle_prior, joint_limit_factor, motion_prior
 

@@ -21,9 +21,10 @@ from numpy.typing import NDArray
 
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_tls_weights
-from apcc_graph.robot import Robot
-from apcc_graph.segment import Segment
-from apcc_graph.sequence import Sequence as RobotSequence
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
+from apcc_graph.model.sequence import Sequence as RobotSequence
 from factors.projection import (
     CameraChain,
     ProjectionFactor,
@@ -35,8 +36,6 @@ from factors.projection import (
     frame_key,
 )
 from factors.track_points import cut_tracks
-
-FloatArray = NDArray[np.float64]
 
 __all__ = ["CameraTerms", "calibration_factors", "calibration_from", "camera_observations",
            "frame_key", "prior_factors", "thetas_from", "values_from"]

@@ -3,14 +3,14 @@
 Where the window knows few points yet (the first frames of a sequence, or after a blackout), the
 angles are first found from the previous frame by the 1-point front end: per segment from the base
 outward, 1-point RANSAC on the generalized epipolar constraint between the previous and the new
-frame (:func:`apcc_graph.solvers.one_point_ransac`), with the segment's base motion from the angles
+frame (:func:`apcc_graph.frontend.one_point.one_point_ransac`), with the segment's base motion from the angles
 below it (:func:`one_point_guess`). Then the prediction (constant angular velocity from the two
 previous estimates) is refined against the tracks the window already knows: each live track's point
 (triangulated from its earlier observations) is held fixed and the new frame's S angles are fitted
 to the new observations of those tracks, all cameras together, by robust Gauss-Newton (Cauchy
 weights, then the truncated quadratic): a perspective-n-point problem in joint space. Observations
 are whitened reprojection errors (:mod:`factors.track_points`); Jacobians come from the scalar APCC
-transforms (:func:`apcc_graph.kinematics.apcc_transform_scalar`), one frame at a time.
+transforms (:func:`apcc_graph.model.kinematics.apcc_transform_scalar`), one frame at a time.
 """
 
 from __future__ import annotations
@@ -20,11 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.kinematics import apcc_transform, apcc_transform_scalar
-from apcc_graph.robot import Robot
-from apcc_graph.solvers import one_point_ransac
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.frontend.one_point import one_point_ransac
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import apcc_transform, apcc_transform_scalar
+from apcc_graph.model.robot import Robot
 
 
 @dataclass(frozen=True)

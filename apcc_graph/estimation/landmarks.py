@@ -32,7 +32,8 @@ from numpy.typing import NDArray
 
 from apcc_graph.estimation.initial_guess import FrameRows
 from apcc_graph.estimation.robust import gnc_tls_weights
-from apcc_graph.robot import Robot
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
 from factors.landmark import (
     camera_pose_factor,
     camera_pose_key,
@@ -41,8 +42,6 @@ from factors.landmark import (
 )
 from factors.projection import CameraChain, robust_residual_norms
 from factors.track_points import TrackObservations
-
-FloatArray = NDArray[np.float64]
 
 ChainLookup = Callable[[int, int, int], CameraChain]
 """``(camera, first, last) -> the camera's chain over frames first .. last``."""

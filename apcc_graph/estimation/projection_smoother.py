@@ -3,7 +3,7 @@
 Every observation enters the graph once, in a projection factor that eliminates its track's
 point or, for a track that outlives the window, as a landmark observation; ``apcc-graph bench
 smoother`` measures it against the Cramer-Rao bound of the whole sequence and against the bound
-of a fixed lag (:func:`apcc_graph.sequence_bound.lag_bound`). The older epipolar smoother
+of a fixed lag (:func:`apcc_graph.evaluation.sequence_bound.lag_bound`). The older epipolar smoother
 (:mod:`apcc_graph.estimation.smoother`, ``vision="epipolar"``) stays for comparison.
 
 This module manages the window and nothing else; the pieces it drives are separate:
@@ -61,12 +61,11 @@ from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.robust import gnc_tls_weights
 from apcc_graph.estimation.smoother import SmootherFrame
-from apcc_graph.robot import Robot
-from apcc_graph.sequence import FrameObservations, Sequence
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import FrameObservations, Sequence
 from factors.projection import CameraChain, ProjectionFactor, robust_residual_norms
 from factors.track_points import TrackObservations
-
-FloatArray = NDArray[np.float64]
 
 
 class ProjectionFixedLagSmoother:

@@ -7,9 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.robot import Robot
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
 
 
 @dataclass(frozen=True)

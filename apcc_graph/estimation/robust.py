@@ -21,9 +21,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
 
 
 def gnc_tls_weights(norms: FloatArray, threshold: float, mu: float) -> FloatArray:

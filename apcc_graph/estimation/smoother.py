@@ -21,7 +21,7 @@ prediction (constant angular velocity) is checked against the correspondences wi
 earlier frame that shares tracks with this one (the previous frame, or the last one before a
 blackout). When at least ``agreement`` of them fall inside the gate the prediction stands and the
 graph refines it; otherwise, or when the prediction shows no parallax to check,
-:func:`apcc_graph.solvers.one_point_ransac` re-initialises the angle from that pair.
+:func:`apcc_graph.frontend.one_point.one_point_ransac` re-initialises the angle from that pair.
 
 Linearisation: by default each epipolar factor is linearised once, at the angles it was built at,
 and enters gtsam as a C++ ``LinearContainerFactor`` (first-estimate Jacobians), so gtsam never
@@ -69,14 +69,14 @@ from tqdm import tqdm
 from apcc_graph.estimation.epipolar_graph import angle_key
 from apcc_graph.estimation.options import GraphOptions, loss_scale, reuse_factor
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.kinematics import apcc_transform_scalar
-from apcc_graph.robot import Robot
-from apcc_graph.sequence import FrameObservations, Sequence
-from apcc_graph.solvers import one_point_ransac
+from apcc_graph.frontend.one_point import one_point_ransac
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import apcc_transform_scalar
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import FrameObservations, Sequence
 from factors.epipolar import EpipolarFrameFactor, calibrated_segments
 from factors.priors import angle_prior, joint_limit_factor, motion_prior
 
-FloatArray = NDArray[np.float64]
 BACKENDS = ("incremental", "batch")
 _CAL_BASE = gtsam.symbol("a", 0)
 """Angle keys are ``frame * S + segment``, far below any gtsam Symbol key (calibration)."""

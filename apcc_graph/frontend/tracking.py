@@ -26,11 +26,9 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from apcc_graph.atomic_write import atomic_write_text
-from apcc_graph.sequence import Tracks
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from apcc_graph.io.atomic import atomic_write_text
+from apcc_graph.model.arrays import FloatArray, IntArray
+from apcc_graph.model.sequence import Tracks
 
 
 @dataclass(frozen=True)
@@ -200,7 +198,7 @@ def track_sequence(folder: str | Path, force: bool = False,
         ValueError: no images, an image missing or unreadable, of the wrong size for its camera,
             or existing tracks without ``force``; the message names the file.
     """
-    from apcc_graph.io import load_sequence, tracks_csv
+    from apcc_graph.io.sequence_folder import load_sequence, tracks_csv
 
     folder = Path(folder)
     sequence = load_sequence(folder)

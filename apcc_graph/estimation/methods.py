@@ -7,7 +7,7 @@ from typing import Any
 from numpy.typing import ArrayLike
 
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.sequence import Sequence
+from apcc_graph.model.sequence import Sequence
 
 METHODS = ("chain", "batch", "smoother")
 """Estimators available."""

@@ -33,11 +33,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.segment import Segment
 
 _SERIES_LIMIT = 1e-3
 """Below this |x| the series of sin(x)/x is used: its truncation error there is < 1e-20."""

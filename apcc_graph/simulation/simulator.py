@@ -23,13 +23,11 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from apcc_graph.planar_curves import growing_curvature_transform
-from apcc_graph.robot import Robot
-from apcc_graph.segment import Segment
-from apcc_graph.sequence import Sequence, Tracks
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from apcc_graph.model.arrays import FloatArray, IntArray
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
+from apcc_graph.model.sequence import Sequence, Tracks
+from apcc_graph.simulation.planar_curves import growing_curvature_transform
 
 MOTIONS = ("smooth", "paper")
 SCENES = ("points", "room")
@@ -182,7 +180,7 @@ def simulate(
         truth_segments: segments to simulate with instead of the robot's (model mismatch in k,
             delta_max, length).
         curvature_growth: simulate each segment as a rod whose curvature grows along the arc by
-            ``1 + g`` from base to tip (:mod:`apcc_graph.planar_curves`); 0 for the APCC model.
+            ``1 + g`` from base to tip (:mod:`apcc_graph.simulation.planar_curves`); 0 for the APCC model.
         decimals: round the observed pixels to this many decimals (a tracker's precision; keeps
             saved files small); ``None`` keeps full precision.
         progress: show a progress bar.

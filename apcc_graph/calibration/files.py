@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.calibration import ThetaFit, calibrate_from_tip, fit_segment, fit_thetas
-from apcc_graph.segment import Segment
-from apcc_graph.toml_fields import TomlTable, read_toml
+from apcc_graph.calibration.fit import ThetaFit, calibrate_from_tip, fit_segment, fit_thetas
+from apcc_graph.io.toml_fields import TomlTable, read_toml
+from apcc_graph.model.segment import Segment
 
 CALIBRATION_FORMAT = "apcc-graph/calibration@1"
 
@@ -109,8 +109,8 @@ class CalibrationReport:
 def calibrate_measurements(measurements: TipMeasurements) -> CalibrationReport:
     """Calibrate one segment from measured tip poses.
 
-    One pose: :func:`~apcc_graph.calibration.calibrate_from_tip`; several:
-    :func:`~apcc_graph.calibration.fit_segment`. Either way the report carries the residuals of the
+    One pose: :func:`~apcc_graph.calibration.fit.calibrate_from_tip`; several:
+    :func:`~apcc_graph.calibration.fit.fit_segment`. Either way the report carries the residuals of the
     APCC model and of the best PCC fit on the same poses.
     """
     m = measurements

@@ -19,13 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from apcc_graph.camera import validate_pose
-from apcc_graph.robot import Robot
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from apcc_graph.model.arrays import FloatArray, IntArray
+from apcc_graph.model.camera import validate_pose
+from apcc_graph.model.robot import Robot
 
 
 class Tracks:

@@ -61,7 +61,7 @@ _RENDER_OPTIONS = ("length", "k", "delta_max_deg", "theta_max_deg", "bends_deg",
 
 
 def _run_calibrate(args: argparse.Namespace) -> str:
-    from apcc_graph.calibration_file import calibrate_measurements, load_tip_measurements
+    from apcc_graph.calibration.files import calibrate_measurements, load_tip_measurements
 
     path = Path(args.file)
     lines = []
@@ -72,7 +72,7 @@ def _run_calibrate(args: argparse.Namespace) -> str:
         option = "--" + given[0].replace("_", "-")
         raise UserError(f"{option} applies to --render only")
     if path.is_dir():
-        from apcc_graph.calibration_images import calibrate_images
+        from apcc_graph.calibration.photos import calibrate_images
 
         result = calibrate_images(path)
         report = result.report
@@ -80,7 +80,8 @@ def _run_calibrate(args: argparse.Namespace) -> str:
     else:
         report = calibrate_measurements(load_tip_measurements(path))
     if args.output is not None:
-        from apcc_graph.robot import Robot, save_robot
+        from apcc_graph.io.robot_file import save_robot
+        from apcc_graph.model.robot import Robot
 
         save_robot(Robot([report.segment]), args.output)
     lines.append(_format_calibration(report, args.file, args.output))
@@ -89,8 +90,8 @@ def _run_calibrate(args: argparse.Namespace) -> str:
 
 def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
     """``calibrate --render``: write a seeded synthetic image folder to ``path``."""
-    from apcc_graph.render_calibration import write_calibration_images
-    from apcc_graph.segment import Segment
+    from apcc_graph.model.segment import Segment
+    from apcc_graph.simulation.calibration_photos import write_calibration_images
 
     missing = [f"--{name.replace('_', '-')}" for name in ("length", "k", "bends_deg")
                if getattr(args, name) is None]
@@ -116,8 +117,8 @@ def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
 
 def _format_image_measurements(result: object) -> str:
     """One line per image: chord angle, tip angle, |OP|, fitted theta and corner RMS."""
-    from apcc_graph.calibration import MIN_BEND
-    from apcc_graph.calibration_images import ImagesCalibration
+    from apcc_graph.calibration.fit import MIN_BEND
+    from apcc_graph.calibration.photos import ImagesCalibration
 
     assert isinstance(result, ImagesCalibration)
     m = result.setup.markers
@@ -139,7 +140,7 @@ def _format_image_measurements(result: object) -> str:
 
 
 def _format_calibration(report: object, path: str, output: str | None) -> str:
-    from apcc_graph.calibration_file import CalibrationReport
+    from apcc_graph.calibration.files import CalibrationReport
 
     assert isinstance(report, CalibrationReport)
     seg = report.segment
@@ -175,8 +176,8 @@ def _format_calibration(report: object, path: str, output: str | None) -> str:
 
 def _segment_toml(segment: object) -> str:
     """The ``[[segments]]`` table of ``segment`` exactly as ``save_robot`` writes its values."""
-    from apcc_graph.robot import Robot
-    from apcc_graph.robot_file import robot_to_toml
+    from apcc_graph.io.robot_file import robot_to_toml
+    from apcc_graph.model.robot import Robot
 
     entry = robot_to_toml(Robot([segment]))["segments"][0]
     return "\n".join(["[[segments]]"] + [f"{key} = {value!r}" for key, value in entry.items()])
@@ -191,9 +192,9 @@ def _run_track(args: argparse.Namespace) -> str:
 
 
 def _run_simulate(args: argparse.Namespace) -> str:
-    from apcc_graph.io import save_sequence
-    from apcc_graph.robot import load_robot
-    from apcc_graph.simulate import simulate
+    from apcc_graph.io.robot_file import load_robot
+    from apcc_graph.io.sequence_folder import save_sequence
+    from apcc_graph.simulation.simulator import simulate
 
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
@@ -236,8 +237,8 @@ information matrix is dense."""
 
 def _bound_line(sim: object, noise_px: float) -> str:
     """The Cramer-Rao bound of a simulation's angles, as ``simulate`` prints it."""
-    from apcc_graph.sequence_bound import sequence_bound
-    from apcc_graph.simulate import Simulation
+    from apcc_graph.evaluation.sequence_bound import sequence_bound
+    from apcc_graph.simulation.simulator import Simulation
 
     assert isinstance(sim, Simulation)
     seq = sim.sequence
@@ -254,10 +255,10 @@ def _bound_line(sim: object, noise_px: float) -> str:
 
 def _simulate_images(args: argparse.Namespace, sim: object, out: Path) -> str:
     """``simulate --images``: the sequence without tracks, and rendered images of the room."""
-    from apcc_graph.io import save_sequence
-    from apcc_graph.render import SensorModel, textured_room, write_sequence_images
-    from apcc_graph.sequence import Sequence
-    from apcc_graph.simulate import Simulation
+    from apcc_graph.io.sequence_folder import save_sequence
+    from apcc_graph.model.sequence import Sequence
+    from apcc_graph.simulation.render import SensorModel, textured_room, write_sequence_images
+    from apcc_graph.simulation.simulator import Simulation
 
     assert isinstance(sim, Simulation)
     seq = sim.sequence
@@ -302,9 +303,9 @@ DEFAULT_LAG = 1.0
 
 
 def _run_estimate(args: argparse.Namespace) -> str:
-    from apcc_graph.api import estimate
-    from apcc_graph.estimate_io import save_estimate
-    from apcc_graph.io import load_sequence
+    from apcc_graph.estimation.methods import estimate
+    from apcc_graph.io.estimates import save_estimate
+    from apcc_graph.io.sequence_folder import load_sequence
 
     sequence = load_sequence(args.sequence)
     theta0 = _theta0(args.theta0_deg, sequence.n_segments)
@@ -338,7 +339,7 @@ def _run_estimate(args: argparse.Namespace) -> str:
         raise UserError(str(error)) from None
     written = save_estimate(result, args.out)
     if args.calibrate and args.method == "batch":
-        from apcc_graph.robot_file import save_robot
+        from apcc_graph.io.robot_file import save_robot
 
         robot_path = Path(args.out) / "robot_calibrated.toml"
         save_robot(result.robot, robot_path)
@@ -359,7 +360,7 @@ def _run_estimate(args: argparse.Namespace) -> str:
 
 def _truth_for(estimate: str, thetas: np.ndarray, truth: str) -> np.ndarray:
     """The ground-truth angles of sequence folder ``truth``, checked against an estimate's."""
-    from apcc_graph.io import load_sequence
+    from apcc_graph.io.sequence_folder import load_sequence
 
     seq = load_sequence(truth)
     if seq.thetas is None:
@@ -371,8 +372,8 @@ def _truth_for(estimate: str, thetas: np.ndarray, truth: str) -> np.ndarray:
 
 
 def _run_evaluate(args: argparse.Namespace) -> str:
-    from apcc_graph.estimate_io import load_theta_csv
-    from apcc_graph.evaluation import compare
+    from apcc_graph.evaluation.accuracy import compare
+    from apcc_graph.io.estimates import load_theta_csv
 
     _, thetas, _ = load_theta_csv(Path(args.estimate) / "theta.csv")
     report = compare(thetas, _truth_for(args.estimate, thetas, args.truth), window=args.window)
@@ -391,7 +392,7 @@ def _run_evaluate(args: argparse.Namespace) -> str:
 # --------------------------------------------------------------------------------------- bench
 def _run_bench_kinematics(args: argparse.Namespace) -> str:
     from apcc_graph.bench.kinematics import run_kinematics_benchmark
-    from apcc_graph.robot import load_robot
+    from apcc_graph.io.robot_file import load_robot
 
     if args.frames < 1 or args.repeats < 1:
         raise UserError("--frames and --repeats must be at least 1")
@@ -421,7 +422,7 @@ def _run_bench_kinematics(args: argparse.Namespace) -> str:
 
 def _run_bench_sequences(args: argparse.Namespace) -> str:
     from apcc_graph.bench.sequences import run_sequence_benchmark
-    from apcc_graph.robot import load_robot
+    from apcc_graph.io.robot_file import load_robot
 
     robot = load_robot(args.robot)
     if not robot.camera_segments:
@@ -494,7 +495,7 @@ def _run_bench_accuracy(args: argparse.Namespace) -> str:
 
 # ------------------------------------------------------------------------------------------ plot
 def _run_plot(args: argparse.Namespace) -> str:
-    from apcc_graph.estimate_io import load_theta_csv
+    from apcc_graph.io.estimates import load_theta_csv
     from apcc_graph.plots import angles_figure, check_figure_path, save_figure
 
     check_figure_path(args.output)
@@ -989,7 +990,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"apcc-graph: error: {message}", file=sys.stderr)
         return 1
     return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -35,9 +35,8 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from apcc_graph.camera import TipCamera
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.camera import TipCamera
 
 TEXTURE_SOURCES = ("skimage", "procedural")
 SKIMAGE_TEXTURES = ("brick", "camera", "grass", "astronaut", "coffee", "gravel")

@@ -15,9 +15,8 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.segment import require_finite
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.segment import require_finite
 
 OPENCV_DISTORTION_SIZES = (0, 4, 5, 8, 12, 14)
 """Numbers of distortion coefficients that OpenCV accepts."""

@@ -15,11 +15,10 @@ curvature; ``g > 0`` bends more toward the tip (tip curvature ``1 + g`` times th
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from apcc_graph.kinematics import plane_to_transform
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import plane_to_transform
 
 
 def growing_curvature_tip(

@@ -14,15 +14,15 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from apcc_graph.atomic_write import atomic_write_bytes
-from apcc_graph.camera import TipCamera
-from apcc_graph.pose_io import (
+from apcc_graph.io.atomic import atomic_write_bytes
+from apcc_graph.io.poses import (
     quaternion_for_file,
     rotation_from_quaternion,
 )
-from apcc_graph.robot import Robot
-from apcc_graph.segment import Segment
-from apcc_graph.toml_fields import TomlTable, read_toml
+from apcc_graph.io.toml_fields import TomlTable, read_toml
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
 
 ROBOT_FORMAT = "apcc-graph/robot@1"
 

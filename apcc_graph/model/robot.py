@@ -10,16 +10,14 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from apcc_graph.camera import TipCamera
-from apcc_graph.kinematics import apcc_in_plane, bend_rotation_entries
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.kinematics import apcc_in_plane, bend_rotation_entries
+from apcc_graph.model.segment import Segment
 
 _CHUNK = 4096
 """Frames per block in :meth:`Robot.forward`: one block's working set stays in the L2 cache."""
@@ -229,21 +227,3 @@ class Robot:
             for i, cam in enumerate(self._cameras)
             if cam is not None
         }
-
-
-def load_robot(path: str | Path) -> Robot:
-    """Read a ``robot.toml`` file (format ``apcc-graph/robot@1``, see docs/formats.md).
-
-    Raises:
-        ValueError: the message names the file and the key at fault.
-    """
-    from apcc_graph.robot_file import load_robot as _load
-
-    return _load(path)
-
-
-def save_robot(robot: Robot, path: str | Path) -> None:
-    """Write ``robot`` to ``path`` as ``robot.toml`` atomically (temporary file, then rename)."""
-    from apcc_graph.robot_file import save_robot as _save
-
-    _save(robot, path)

@@ -4,9 +4,9 @@ The paper photographs the segment with a camera parallel to its bending plane an
 angle, the tip tangent angle and the point P off the photo. Here two ArUco markers make the same
 measurement automatic: one on the base, one on the tip. Each image gives one tip pose ``(x, z)``
 and tip angle ``theta_hat``, exactly the inputs of
-:func:`~apcc_graph.calibration.calibrate_from_tip` (one image) and
-:func:`~apcc_graph.calibration.fit_segment` (a sweep); :func:`calibrate_images` runs both through
-:func:`~apcc_graph.calibration_file.calibrate_measurements`.
+:func:`~apcc_graph.calibration.fit.calibrate_from_tip` (one image) and
+:func:`~apcc_graph.calibration.fit.fit_segment` (a sweep); :func:`calibrate_images` runs both through
+:func:`~apcc_graph.calibration.files.calibrate_measurements`.
 
 Conventions
 -----------
@@ -80,7 +80,7 @@ Measurement (and why this one)
 4. Images from a camera with distortion are first remapped to the pinhole camera with the same
    intrinsics (a marker is a homography of its pattern only there).
 
-Measured on images rendered by :mod:`apcc_graph.render_calibration` with the shipped setup
+Measured on images rendered by :mod:`apcc_graph.simulation.calibration_photos` with the shipped setup
 (640 x 480, f = 600 px, 40 px markers, 1 grey level of noise; 42 images, bends -80..80 deg), RMS
 tip position / tip angle error:
 
@@ -98,7 +98,7 @@ is mostly a common scale bias of about +0.05 % (0.15 mm at the tip): k comes out
 (see data/calibration/README.md for the recovery figures).
 
 Synthetic images of this format, rendered from the APCC model, come from
-:mod:`apcc_graph.render_calibration`.
+:mod:`apcc_graph.simulation.calibration_photos`.
 """
 
 from __future__ import annotations
@@ -114,17 +114,16 @@ import numpy as np
 import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.calibration import REACH_SLACK
-from apcc_graph.calibration_file import (
+from apcc_graph.calibration.files import (
     CalibrationReport,
     TipMeasurements,
     calibrate_measurements,
     segment_fields,
 )
-from apcc_graph.camera import TipCamera
-from apcc_graph.toml_fields import TomlTable, read_toml
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.calibration.fit import REACH_SLACK
+from apcc_graph.io.toml_fields import TomlTable, read_toml
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.camera import TipCamera
 
 CALIBRATION_IMAGES_FORMAT = "apcc-graph/calibration-images@1"
 SETUP_FILE = "calibration.toml"
@@ -215,7 +214,7 @@ class CalibrationImagesSetup:
     Attributes:
         length: segment length L, metres.
         theta_max: the segment's bending limit (radians) or ``None`` (see
-            :func:`~apcc_graph.calibration_file.calibrate_measurements`).
+            :func:`~apcc_graph.calibration.files.calibrate_measurements`).
         markers: the marker layout.
         camera: the side camera's intrinsics (its ``tip_T_cam`` is unused).
     """
@@ -772,7 +771,7 @@ def calibrate_images(folder: str | Path) -> ImagesCalibration:
     """Calibrate k and delta_max of a segment from a folder of marker images.
 
     One image: the paper's closed form; several: the least-squares sweep fit
-    (:func:`~apcc_graph.calibration_file.calibrate_measurements`).
+    (:func:`~apcc_graph.calibration.files.calibrate_measurements`).
 
     Args:
         folder: a folder with ``calibration.toml`` and ``*.png`` images (module docstring).

@@ -24,12 +24,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 import scipy.sparse
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from apcc_graph.kinematics import apcc_in_plane, pcc_in_plane
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import apcc_in_plane, pcc_in_plane
+from apcc_graph.model.segment import Segment
 
 MIN_BEND = math.radians(1.0)
 """A pose bent less than this (radians) carries too little information about k."""

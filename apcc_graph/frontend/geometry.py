@@ -24,12 +24,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from apcc_graph.kinematics import apcc_transform, apcc_transform_derivative
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import apcc_transform, apcc_transform_derivative
+from apcc_graph.model.segment import Segment
 
 _TINY = 1e-300
 

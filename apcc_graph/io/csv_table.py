@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
 
 
 class CsvTable:

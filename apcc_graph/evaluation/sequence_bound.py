@@ -25,11 +25,10 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from apcc_graph.simulate import Simulation
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.simulation.simulator import Simulation
 from factors.projection import CameraChain, build_observations, chunk_tracks, reduced_system
 from factors.track_points import cut_tracks
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -11,13 +11,33 @@ Files are written atomically (temporary file, then rename).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Protocol
 
 import gtsam
 import numpy as np
 
-from apcc_graph.atomic_write import atomic_write_text
-from apcc_graph.csv_table import format_number, read_header, read_table
-from apcc_graph.estimation.result import Estimate
+from apcc_graph.io.atomic import atomic_write_text
+from apcc_graph.io.csv_table import format_number, read_header, read_table
+from apcc_graph.model.arrays import FloatArray
+
+
+class Estimate(Protocol):
+    """What is written of an estimate (``apcc_graph.estimation.result.Estimate`` is one; this
+    layer reads files and does not import the estimators)."""
+
+    @property
+    def timestamps(self) -> FloatArray: ...  # (F,) seconds
+
+    @property
+    def thetas(self) -> FloatArray: ...  # (F, S) radians
+
+    @property
+    def sigmas(self) -> FloatArray: ...  # (F, S) radians, NaN where unknown
+
+    @property
+    def n_frames(self) -> int: ...
+
+    def world_T_tip(self) -> FloatArray: ...  # (F, S, 4, 4)
 
 
 def theta_columns(n_segments: int) -> list[str]:

@@ -17,9 +17,9 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from apcc_graph.camera import TipCamera
-from apcc_graph.geometry import SegmentTwoView, skew
-from apcc_graph.segment import Segment
+from apcc_graph.frontend.geometry import SegmentTwoView, skew
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.segment import Segment
 
 
 def crlb_theta(

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-FloatArray = NDArray[np.float64]
+from apcc_graph.model.arrays import FloatArray
 
 
 @dataclass(frozen=True)

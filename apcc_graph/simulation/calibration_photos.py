@@ -1,20 +1,20 @@
 """Synthetic side-camera images of one segment with ArUco markers, for calibration tests.
 
 Renders what the side camera of a calibration-images folder
-(:mod:`apcc_graph.calibration_images`, format ``apcc-graph/calibration-images@1``) would see of a
+(:mod:`apcc_graph.calibration.photos`, format ``apcc-graph/calibration-images@1``) would see of a
 segment bent to ``theta``, and writes whole folders of such images that
-:func:`~apcc_graph.calibration_images.calibrate_images` reads back. The shipped folders in
+:func:`~apcc_graph.calibration.photos.calibrate_images` reads back. The shipped folders in
 ``data/calibration/`` come from :func:`write_calibration_images` (commands in its README).
 
 Conventions
 -----------
-- Frames, units and the marker mounting are those of :mod:`apcc_graph.calibration_images`:
+- Frames, units and the marker mounting are those of :mod:`apcc_graph.calibration.photos`:
   metres and radians, the base frame with +z the base axis and bends toward +x positive, the
   markers flat in the bending plane facing a camera on the base frame's -y side, OpenCV pixel
   coordinates (pixel centres at integers) and distortion order. A camera pose is ``base_T_cam``
   (4x4, the camera frame in the base frame, OpenCV camera axes).
 - The tip drawn is the APCC tip (position and tangent from
-  :func:`~apcc_graph.kinematics.apcc_in_plane`) of the :class:`~apcc_graph.segment.Segment`.
+  :func:`~apcc_graph.model.kinematics.apcc_in_plane`) of the :class:`~apcc_graph.model.segment.Segment`.
 - Images are 8-bit grey, ``camera.height`` x ``camera.width``; noise is in grey levels.
 - Randomness (background blotches and sensor noise) comes only from the
   ``numpy.random.Generator`` passed in; :func:`write_calibration_images` seeds one with
@@ -32,7 +32,7 @@ the area-integrated ones of a real sensor and the rendered corners lie within ~0
 projection. :func:`side_camera_pose` places a camera parallel to the bending plane (optionally
 tilted) that frames a whole sweep. :func:`write_calibration_images` writes a folder
 (``pose_00.png``, ``pose_01.png``, ... and ``calibration.toml``), each file atomically
-(:mod:`apcc_graph.atomic_write`).
+(:mod:`apcc_graph.io.atomic`).
 """
 
 from __future__ import annotations
@@ -45,8 +45,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.atomic_write import atomic_write_bytes, atomic_write_text
-from apcc_graph.calibration_images import (
+from apcc_graph.calibration.photos import (
     SETUP_FILE,
     CalibrationImagesSetup,
     MarkerLayout,
@@ -58,11 +57,11 @@ from apcc_graph.calibration_images import (
     pose_matrix,
     setup_to_toml,
 )
-from apcc_graph.camera import TipCamera
-from apcc_graph.kinematics import apcc_in_plane
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.io.atomic import atomic_write_bytes, atomic_write_text
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.kinematics import apcc_in_plane
+from apcc_graph.model.segment import Segment
 
 DEFAULT_CAMERA = TipCamera(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
 """The side camera of synthetic folders: 640 x 480 pixels, 600 px focal length, no distortion."""
@@ -121,7 +120,7 @@ def side_camera_pose(
         bends: the bends theta of the sweep, radians.
         camera: the side camera.
         markers: the marker layout (default
-            :meth:`~apcc_graph.calibration_images.MarkerLayout.for_length`).
+            :meth:`~apcc_graph.calibration.photos.MarkerLayout.for_length`).
         tilt: small rotation of the camera away from parallel, radians.
         margin: free border on each side, a fraction of the image.
 
@@ -233,7 +232,7 @@ def render_calibration_image(
     """What the side camera sees of ``segment`` bent to ``theta``, with its two markers.
 
     Args:
-        segment: the segment (APCC tip from :func:`~apcc_graph.kinematics.apcc_in_plane`).
+        segment: the segment (APCC tip from :func:`~apcc_graph.model.kinematics.apcc_in_plane`).
         theta: the bend, radians.
         camera: the side camera (intrinsics, distortion).
         base_T_cam: 4x4 pose of the camera in the base frame (e.g. :func:`side_camera_pose`).
@@ -342,7 +341,7 @@ def write_calibration_images(
         bends: bends theta, radians.
         camera: the side camera.
         markers: the marker layout (default
-            :meth:`~apcc_graph.calibration_images.MarkerLayout.for_length`).
+            :meth:`~apcc_graph.calibration.photos.MarkerLayout.for_length`).
         seed: seed of ``numpy.random.default_rng`` (background and noise).
         noise: sensor noise, grey levels.
         tilt: camera tilt away from parallel (see :func:`side_camera_pose`), radians.
@@ -381,7 +380,7 @@ def write_calibration_images(
     setup = CalibrationImagesSetup(length=segment.length, theta_max=segment.theta_max,
                                    markers=markers, camera=camera)
     truth = (
-        "Synthetic calibration images (apcc_graph.render_calibration.write_calibration_images).\n"
+        "Synthetic calibration images (apcc_graph.simulation.calibration_photos.write_calibration_images).\n"
         f"True segment: length = {segment.length!r} m, k = {segment.k!r}, "
         f"delta_max_deg = {math.degrees(segment.delta_max):.6g}, "
         f"theta_max_deg = {math.degrees(segment.theta_max):.6g}\n"

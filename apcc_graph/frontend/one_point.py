@@ -46,11 +46,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.geometry import SegmentTwoView, epipolar_errors, skew
-from apcc_graph.kinematics import apcc_in_plane
-from apcc_graph.segment import Segment
-
-FloatArray = NDArray[np.float64]
+from apcc_graph.frontend.geometry import SegmentTwoView, epipolar_errors, skew
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kinematics import apcc_in_plane
+from apcc_graph.model.segment import Segment
 
 DEFAULT_GRID_STEP = math.radians(1.0)
 _NEWTON_ITERATIONS = 40

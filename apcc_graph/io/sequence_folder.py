@@ -26,16 +26,16 @@ from pathlib import Path
 import numpy as np
 import tomli_w
 
-from apcc_graph.atomic_write import atomic_write_bytes, atomic_write_text
-from apcc_graph.csv_table import CsvTable, format_number, read_header, read_table
-from apcc_graph.pose_io import (
+from apcc_graph.io.atomic import atomic_write_bytes, atomic_write_text
+from apcc_graph.io.csv_table import CsvTable, format_number, read_header, read_table
+from apcc_graph.io.poses import (
     UNIT_TOLERANCE,
     quaternion_for_file,
     rotation_from_quaternion,
 )
-from apcc_graph.robot import Robot
-from apcc_graph.robot_file import load_robot, robot_to_toml
-from apcc_graph.sequence import Sequence, Tracks
+from apcc_graph.io.robot_file import load_robot, robot_to_toml
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence, Tracks
 
 BASE_COLUMNS = ["base_x", "base_y", "base_z", "base_qw", "base_qx", "base_qy", "base_qz"]
 TRACK_COLUMNS = ["frame", "track_id", "u", "v"]

@@ -1,0 +1,16 @@
+"""File formats: reading and writing what the user gives and gets (``docs/formats.md``).
+
+Holds CSV tables with errors that name file, line and column (:mod:`~apcc_graph.io.csv_table`),
+typed TOML fields (:mod:`~apcc_graph.io.toml_fields`), ``robot.toml``
+(:mod:`~apcc_graph.io.robot_file`), sequence folders (:mod:`~apcc_graph.io.sequence_folder`),
+estimates: ``theta.csv`` and TUM tip trajectories (:mod:`~apcc_graph.io.estimates`), pose
+fields (:mod:`~apcc_graph.io.poses`) and atomic writes: a temporary file, then a rename
+(:mod:`~apcc_graph.io.atomic`).
+
+May import: :mod:`apcc_graph.model`. Nothing here estimates anything.
+"""
+
+from apcc_graph.io.robot_file import load_robot, save_robot
+from apcc_graph.io.sequence_folder import load_sequence, save_sequence
+
+__all__ = ["load_robot", "load_sequence", "save_robot", "save_sequence"]
