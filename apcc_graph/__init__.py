@@ -28,7 +28,7 @@ _EXPORTS = {
     "save_robot": "apcc_graph.io.robot_file",
     "pcc_transform": "apcc_graph.model.kinematics",
     "apcc_transform": "apcc_graph.model.kinematics",
-    "calibrate_from_tip": "apcc_graph.calibration.fit",
+    "calibrate_from_tip": "apcc_graph.calibration.closed_form",
     "fit_segment": "apcc_graph.calibration.fit",
     "estimate": "apcc_graph.estimation.methods",
     "Estimate": "apcc_graph.estimation.result",

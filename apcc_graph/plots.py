@@ -13,6 +13,9 @@ millimetres or metres as labelled; inputs are in SI units and radians like the r
   their errors (Fig. 9), from :func:`apcc_graph.bench.calibration.run_calibration_benchmark`.
 - :func:`robot_figure`: each segment as its constant-curvature arc with the two rigid links of
   its APCC 2L-5R equivalent, in the x-z plane of the robot base.
+
+Layer: above :mod:`apcc_graph.bench`, whose results two of the figures draw, and below the
+command line. Imports the model and, for type hints only, the benchmarks' result types.
 """
 
 from __future__ import annotations
@@ -27,7 +30,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from apcc_graph.model.kinematics import apcc_joint_frames, pcc_in_plane
+from apcc_graph.model.arrays import rms
+from apcc_graph.model.joint_chain import apcc_joint_frames
+from apcc_graph.model.kinematics import pcc_in_plane
 from apcc_graph.model.robot import Robot
 
 if TYPE_CHECKING:
@@ -146,8 +151,8 @@ def angles_figure(timestamps: ArrayLike, thetas: ArrayLike, sigmas: ArrayLike | 
     if title is None:
         title = f"bending angles, {label}"
         if true is not None:
-            rms = np.sqrt(np.nanmean((est - true) ** 2, axis=0))
-            title += " (RMS " + " / ".join(f"{r:.2f}" for r in rms) + " deg)"
+            errors = rms(est - true, skip_nan=True)
+            title += " (RMS " + " / ".join(f"{r:.2f}" for r in errors) + " deg)"
     fig.suptitle(title)
     return fig
 

@@ -1,15 +1,33 @@
 """Custom GTSAM factors for apcc_graph (the back end).
 
 Conventions: the state is the bending angle of each segment at each frame, a Vector1 value
-(radians); its tangent space is the identity, so GTSAM's ``x + dx`` is plain addition. Each
-module holds a pure numpy residual with analytic Jacobians and a thin constructor returning a
-gtsam factor (STYLE.md 4-6); this package imports only apcc_graph's maths modules (kinematics,
-geometry, segment), never the estimators.
+(radians) or one ``Vector(S)`` per frame; its tangent space is the identity, so GTSAM's
+``x + dx`` is plain addition. The maths (residuals with analytic Jacobians) is pure numpy, apart
+from the thin code that hands it to gtsam; docs/estimation.md derives it.
 
-- :mod:`factors.epipolar`: the generalized epipolar factor of one tip camera between a frame and
-  one or several earlier frames, in joint space (the APCC chain inside the residual), Sampson
-  residuals whitened by the pixel noise, a robust loss per correspondence, optional calibration
-  variables (k, delta_max), QR-compressed residuals and first-estimate linear factors.
+May import: :mod:`apcc_graph.model` and :mod:`apcc_graph.frontend` (the two-view geometry and
+the Sampson error), never the estimators.
+
+Modules:
+
+- :mod:`factors.epipolar_residual`: the generalized epipolar residual of one tip camera between
+  a frame and one or several earlier frames, in joint space (the APCC chain inside the residual):
+  Sampson errors whitened by the pixel noise, Jacobians in the angles and optionally in each
+  segment's calibration (k, delta_max).
+- :mod:`factors.epipolar`: the epipolar factors built on it: a robust loss per correspondence,
+  the first-evaluation gate, QR-compressed residuals and first-estimate linear factors.
+- :mod:`factors.camera_chain`: tip-camera poses along the APCC chain and their derivatives, and
+  the chain that fixes one camera's poses.
+- :mod:`factors.track_points`: one camera's tracks and their observation model (whitened
+  reprojection errors).
+- :mod:`factors.triangulation`: each track's point for given camera poses (inverse-depth
+  Levenberg-Marquardt, robust variant).
+- :mod:`factors.reduced_system`: the projection model's Gauss-Newton system in the angles, each
+  track's point eliminated (Schur complement).
+- :mod:`factors.projection`: the projection factor over a chunk of tracks (Cholesky-compressed
+  reduced system), its keys, and chunking of tracks.
+- :mod:`factors.landmark`: landmarks (points kept as variables) and camera-pose variables tied
+  to the angles.
 - :mod:`factors.kinematic`: the APCC kinematic factor in pose space (base Pose3, angle, tip
   Pose3), residual in the tangent space of Pose3.
 - :mod:`factors.priors`: absolute angle prior, random-walk motion prior (both gtsam C++

@@ -9,11 +9,15 @@ where ``T_j`` is the APCC 2L-5R transform ``base_T_tip`` of segment j
 ``d world_T_cam / d theta_fj = P_j . dT_j . S_j+1`` with the prefix ``P_j = world_T_base T_0 ...
 T_j-1`` and the suffix ``S_j+1 = T_j+1 ... T_c tip_T_cam``; their bottom rows are zero. Units:
 metres and radians.
+
+:class:`CameraChain` holds what fixes one camera's poses given the angles (its segments,
+mounting, base poses and bending planes) for the projection factor.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -84,3 +88,30 @@ def camera_poses(
                                                                       psis[:, j])):
             d_cal[:, j, i] = prefix[j] @ dT @ suffix[j]
     return poses, d_poses, d_cal
+
+
+@dataclass(frozen=True)
+class CameraChain:
+    """What fixes one camera's pose given the angles: its segments, mounting, base poses."""
+
+    segments: tuple[Segment, ...]  # segments 0..c
+    tip_T_cam: FloatArray
+    world_T_base: FloatArray | None  # (F, 4, 4) base poses of frames frame0.., or None
+    psis: FloatArray | None  # (F, S) bending-plane angles of frames frame0.., or None
+    frame0: int = 0  # the frame of world_T_base[0] and psis[0]
+
+    def poses(self, thetas: FloatArray, first: int, derivatives: bool,
+              calibration: bool = False) -> tuple:
+        """Poses (and derivatives) of frames ``first .. first + len(thetas) - 1``; see
+        :func:`camera_poses`."""
+        n = len(self.segments)
+        rows = slice(first - self.frame0, first - self.frame0 + len(thetas))
+        base = None if self.world_T_base is None else self.world_T_base[rows]
+        psis = None if self.psis is None else self.psis[rows, :n]
+        return camera_poses(thetas[:, :n], self.segments, self.tip_T_cam, base, psis,
+                            derivatives, calibration)
+
+    def with_segments(self, segments: Sequence[Segment]) -> CameraChain:
+        """The same chain with other segment models (self-calibration)."""
+        return CameraChain(tuple(segments), self.tip_T_cam, self.world_T_base, self.psis,
+                           self.frame0)

@@ -2,9 +2,10 @@
 
 Variables: ``world_T_base`` and ``world_T_tip`` (``gtsam.Pose3``; rotation in radians, translation
 in metres, both poses map points in their frame to the world frame) and the bending angle
-``theta`` (a Vector1 value, radians). The segment's APCC 2L-5R transform ``base_T_tip(theta; psi)``
-is :func:`apcc_graph.model.kinematics.apcc_transform` (docs/estimation.md, "The robot"; paper III.B eq.
-2-5), with a fixed bending-plane angle ``psi`` (radians).
+``theta`` (a Vector1 value, radians). The segment's APCC 2L-5R transform
+``base_T_tip(theta; psi)`` is :func:`apcc_graph.model.kinematics.apcc_transform`
+(docs/estimation.md, "The robot"; paper III.B eq. 2-5), with a fixed bending-plane angle ``psi``
+(radians).
 
 Residual, in the tangent space of Pose3 at the measured tip (GTSAM order ``(omega, v)``: radians,
 then metres)::
@@ -19,8 +20,9 @@ in metres, in the tip frame).
 Jacobian convention: GTSAM's right-hand perturbation, ``T . Exp(d)`` for the poses (the tangent
 ``d`` in the pose's own frame) and ``theta + d`` for the angle. With ``A = base_T_tip(theta)``,
 ``xi`` its body twist (``A(theta + e) = A(theta) Exp(e xi) + O(e^2)``,
-:func:`apcc_graph.model.kinematics.apcc_body_twists`), ``Ad`` the adjoint map and ``J_r^-1`` the inverse
-right Jacobian of SE(3) (``gtsam.Pose3.LogmapDerivative``, ``Log(E Exp(d)) = r + J_r^-1(r) d``)::
+:func:`apcc_graph.model.kinematics.apcc_body_twists`), ``Ad`` the adjoint map and ``J_r^-1`` the
+inverse right Jacobian of SE(3) (``gtsam.Pose3.LogmapDerivative``,
+``Log(E Exp(d)) = r + J_r^-1(r) d``)::
 
     H_base  =  J_r^-1(r) . Ad(A^-1)      since  T_tip^-1 T_base Exp(d) A = E Exp(Ad(A^-1) d)
     H_theta =  J_r^-1(r) . xi            since  E(theta + d) = E Exp(d xi)
@@ -47,7 +49,7 @@ import gtsam
 import numpy as np
 
 from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.kinematics import apcc_transform_scalar
+from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
 from apcc_graph.model.segment import Segment
 
 KinematicResidual = tuple[FloatArray, FloatArray | None, FloatArray | None, FloatArray | None]

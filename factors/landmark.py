@@ -3,9 +3,9 @@
 The projection factor (:mod:`factors.projection`) eliminates each track's point inside the
 factor. A fixed-lag smoother that does so must cut a track whose first frame leaves the window:
 the rest of the track gets a new point, and whatever the old observations said about the point
-is lost to the new frames. On the benchmark scene that cut raises the bound of a 1 s fixed lag
-by 1.4-2.3x on the segments (``docs/estimation.md``), and the estimate drifts. A track that
-outlives the window is therefore promoted to a *landmark*: its point becomes a ``Point3``
+is lost to the new frames. The cut raises the Cramer-Rao bound of the fixed lag
+(``docs/estimation.md``, "The bound of a fixed-lag smoother"), and the estimate drifts. A track
+that outlives the window is therefore promoted to a *landmark*: its point becomes a ``Point3``
 variable (:func:`landmark_key`) that the smoother keeps while the track is seen and
 marginalises like a frame afterwards, so what its old observations said carries over to the
 frames still in the window.
@@ -38,7 +38,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.model.arrays import FloatArray
-from factors.projection import CameraChain, frame_key
+from factors.camera_chain import CameraChain
+from factors.projection import frame_key
 
 MAX_CAMERAS = 64
 """Camera-pose keys pack the camera into the symbol's index: at most this many cameras."""

@@ -1,5 +1,5 @@
-"""Tracks of one tip camera and the 3-D point behind each track (the nuisance the projection
-factor eliminates).
+"""Tracks of one tip camera and their observation model (the rows the projection factor
+sees).
 
 Observation model (``docs/estimation.md``): row k of a track sees the track's point ``p``
 (world frame, metres) from camera pose ``world_T_cam = [R | o]`` as the undistorted normalised
@@ -10,17 +10,12 @@ image point ``x_k`` (``pixel = K distort(x_k)``)::
 ``W_k = D_k / sigma_px`` whitens it: ``D_k`` is the 2x2 derivative of the pixel with respect to
 ``x`` at ``x_k`` (``diag(fx, fy)`` for a pinhole), so ``r_k`` is the pixel error in units of the
 pixel noise, to first order, and ``|r_k|^2`` is chi-square with 2 degrees of freedom for an
-inlier.
+inlier. Each track's point is found by :mod:`factors.triangulation`.
 
-:func:`triangulate` finds each track's point for given camera poses: weighted least squares of
-its rows' ``r_k``, solved by Levenberg-Marquardt in inverse-depth coordinates anchored at the
-track's first row (``p = o_a + R_a (alpha, beta, 1) / rho``), which stays well conditioned for the
-small baselines of a tip camera; all tracks are solved at once (vectorised).
-
-Layout: per-row arrays inside this module and :mod:`factors.projection` keep the row index
-*last* (``R`` as ``(3, 3, N)``, points as ``(3, N)``): numpy's einsum over small leading axes
-is then 10-25x faster than over trailing ones. The public functions take the usual row-first
-arrays.
+Layout: per-row arrays inside this module, :mod:`factors.triangulation` and
+:mod:`factors.reduced_system` keep the row index *last* (``R`` as ``(3, 3, N)``, points as
+``(3, N)``): numpy's einsum over small leading axes is then much faster than over trailing ones.
+The public functions take the usual row-first arrays.
 """
 
 from __future__ import annotations
@@ -35,11 +30,6 @@ from apcc_graph.model.arrays import FloatArray, IntArray
 
 MIN_DEPTH = 0.02
 """Metres: a point closer than this in front of a camera it is seen from is not a valid point."""
-MIN_INVERSE_DEPTH = 1e-3
-"""1/metres: a point's inverse depth from its track's first camera stays above this (1 km); a
-track whose rays meet behind the cameras (noise without parallax) keeps its point there."""
-DEFAULT_DEPTH = 3.0
-"""Metres: depth a track's point starts at when its rays do not fix it."""
 
 
 @dataclass(frozen=True)
@@ -171,6 +161,11 @@ class Projection:
     r: FloatArray
     valid: NDArray[np.bool_]
 
+    @property
+    def norms(self) -> FloatArray:
+        """``(N,)`` ``|r|`` per row, ``inf`` where the point is behind the camera."""
+        return np.where(self.valid, np.sqrt(self.r[0] ** 2 + self.r[1] ** 2), np.inf)
+
     def whitened_dm(self, whiten_t: FloatArray) -> FloatArray:
         """``(2, 3, N)`` ``W dm/dq``."""
         iz, m = self.iz, self.m
@@ -215,203 +210,9 @@ def project(R: FloatArray, o: FloatArray, points: FloatArray
     return q, m, dm
 
 
-def _world_rays(obs: TrackObservations, Rb: FloatArray) -> FloatArray:
-    """``(3, N)`` unit rays of the rows in the world frame."""
-    rays = np.einsum("ijn,jn->in", Rb, np.vstack([obs.xy_t, np.ones(len(obs))]))
-    return rays / np.linalg.norm(rays, axis=0)
-
-
-def _initial_points(obs: TrackObservations, Rb: FloatArray, ob: FloatArray,
-                    weights: FloatArray) -> FloatArray:
-    """``(3, T)`` weighted midpoint of each track's rays, pulled weakly to DEFAULT_DEPTH along
-    the mean ray (so that a track without parallax still gets a point in front of its
-    cameras)."""
-    rays = _world_rays(obs, Rb)
-    w = np.where(weights > 0.0, weights, 1e-3)
-    P = np.eye(3)[:, :, None] - rays[:, None, :] * rays[None, :, :]
-    A = segment_sum(w * P, obs.starts)
-    b = segment_sum(w * np.einsum("ijn,jn->in", P, ob), obs.starts)
-    mean_ray = segment_sum(w * rays, obs.starts)
-    mean_ray /= np.maximum(np.linalg.norm(mean_ray, axis=0), 1e-12)
-    centre = segment_sum(w * ob, obs.starts) / segment_sum(w, obs.starts)
-    lam = 1e-4 * np.einsum("iit->t", A)
-    b = b + lam * (centre + DEFAULT_DEPTH * mean_ray)
-    A = A + lam * np.eye(3)[:, :, None]
-    return np.linalg.solve(np.moveaxis(A, -1, 0), b.T[..., None])[..., 0].T
-
-
-def _segment_median(values: FloatArray, tracks: IntArray, starts: IntArray) -> FloatArray:
-    """Per-track (lower) median of each row of ``values`` ``(d, N)``: ``(d, T)``."""
-    out = np.empty((values.shape[0], len(starts) - 1))
-    middle = starts[:-1] + (starts[1:] - starts[:-1] - 1) // 2
-    for c in range(values.shape[0]):
-        order = np.lexsort((values[c], tracks))
-        out[c] = values[c, order[middle]]
-    return out
-
-
-def robust_weights_from_rays(obs: TrackObservations, R: FloatArray) -> FloatArray:
-    """Rows whose world ray is far from their track's median ray get weight 0, the rest 1.
-
-    ``R``: ``(N, 3, 3)`` camera orientations (or row-last ``(3, 3, N)``). A wrong
-    association's pixel is anywhere in the image, tens of degrees off; a true observation's
-    ray turns only by the parallax of the camera's motion. "Far" is five robust standard
-    deviations of the track's ray angles, and at least 2 degrees.
-    """
-    Rb = R if R.shape[:2] == (3, 3) and R.shape[-1] == len(obs) else np.moveaxis(R, 0, -1)
-    rays = _world_rays(obs, Rb)
-    median = _segment_median(rays, obs.tracks, obs.starts)
-    median /= np.maximum(np.linalg.norm(median, axis=0), 1e-12)
-    angle = np.arccos(np.clip(np.einsum("in,in->n", rays, median[:, obs.tracks]), -1.0, 1.0))
-    spread = _segment_median(angle[None], obs.tracks, obs.starts)[0]
-    limit = np.maximum(5.0 * 1.4826 * spread, np.radians(2.0))
-    return (angle <= limit[obs.tracks]).astype(float)
-
-
-def robust_triangulate(
-    obs: TrackObservations,
-    R: FloatArray,
-    o: FloatArray,
-    weights: FloatArray,
-    points: FloatArray | None = None,
-    scale: float = 3.0,
-    rounds: int = 3,
-) -> tuple[FloatArray, FloatArray]:
-    """Each track's point, robust to wrong associations; and every row's residual norm.
-
-    Starts from the rows whose rays agree with their track's median ray
-    (:func:`robust_weights_from_rays`) when no ``points`` are given, then reweights by the
-    Cauchy weight ``1 / (1 + (|r| / scale)^2)`` of each row's whitened residual for ``rounds``
-    rounds of :func:`triangulate`. Rows with ``weights`` 0 stay out.
-
-    Args:
-        obs: the tracks.
-        R, o: ``(N, 3, 3)``, ``(N, 3)`` camera pose of each row.
-        weights: ``(N,)`` row weights (0: left out).
-        points: ``(T, 3)`` starting points, or ``None``.
-        scale: Cauchy scale (pixel-noise units).
-        rounds: reweighting rounds.
-
-    Returns:
-        ``(T, 3)`` points and ``(N,)`` whitened residual norms at them (``inf`` behind the
-        camera).
-    """
-    Rb, ob = rows_last(R, o)
-    pts = None if points is None else np.ascontiguousarray(points.T)
-    w = weights * (robust_weights_from_rays(obs, Rb) if points is None else 1.0)
-    for _ in range(rounds):
-        pts = triangulate_rows(obs, Rb, ob, w, pts, iterations=4)
-        norms = _norms(project_rows(obs, Rb, ob, pts[:, obs.tracks]))
-        w = weights / (1.0 + (norms / scale) ** 2)
-    pts = triangulate_rows(obs, Rb, ob, w, pts, iterations=10)
-    return pts.T.copy(), _norms(project_rows(obs, Rb, ob, pts[:, obs.tracks]))
-
-
-def _norms(proj: Projection) -> FloatArray:
-    return np.where(proj.valid, np.sqrt(proj.r[0] ** 2 + proj.r[1] ** 2), np.inf)
-
-
 def residual_norms_at(obs: TrackObservations, R: FloatArray, o: FloatArray,
                       points: FloatArray) -> FloatArray:
     """``|r_k|`` of every row at the given ``(T, 3)`` points (``inf`` where the point is
     behind the camera)."""
     Rb, ob = rows_last(R, o)
-    return _norms(project_rows(obs, Rb, ob, np.ascontiguousarray(points.T)[:, obs.tracks]))
-
-
-def triangulate(
-    obs: TrackObservations,
-    R: FloatArray,
-    o: FloatArray,
-    weights: FloatArray,
-    points: FloatArray | None = None,
-    iterations: int = 10,
-    tolerance: float = 1e-7,
-) -> FloatArray:
-    """Each track's point: weighted least squares of its whitened reprojection errors.
-
-    Args:
-        obs: the tracks.
-        R, o: ``(N, 3, 3)``, ``(N, 3)`` camera pose (``world_T_cam``) of each row.
-        weights: ``(N,)`` row weights (0 leaves a row out).
-        points: ``(T, 3)`` starting points (a previous solution); ``None`` to start from the
-            rays' midpoints.
-        iterations: most Levenberg-Marquardt iterations.
-        tolerance: stop when no track's parameters move more than this (inverse depth in 1/m,
-            normalised coordinates).
-
-    Returns:
-        ``(T, 3)`` world points (metres).
-    """
-    Rb, ob = rows_last(R, o)
-    pts = None if points is None else np.ascontiguousarray(points.T)
-    return triangulate_rows(obs, Rb, ob, weights, pts, iterations, tolerance).T.copy()
-
-
-def triangulate_rows(obs: TrackObservations, Rb: FloatArray, ob: FloatArray, weights: FloatArray,
-                 points: FloatArray | None, iterations: int = 10,
-                 tolerance: float = 1e-6) -> FloatArray:
-    """:func:`triangulate`, row-last: ``Rb`` ``(3, 3, N)``, ``ob`` ``(3, N)``, points
-    ``(3, T)`` in and out."""
-    starts, tracks = obs.starts, obs.tracks
-    anchor = starts[:-1]
-    Ra, oa = Rb[:, :, anchor], ob[:, anchor]
-    if points is None:
-        points = _initial_points(obs, Rb, ob, weights)
-    v = np.einsum("jit,jt->it", Ra, points - oa)
-    bad = ~(v[2] > MIN_DEPTH)
-    v[:, bad] = np.vstack([obs.xy_t[:, anchor[bad]], np.ones(bad.sum())]) * DEFAULT_DEPTH
-    params = np.vstack([v[0] / v[2], v[1] / v[2], 1.0 / v[2]])  # (alpha, beta, rho), (3, T)
-    sw = np.sqrt(weights)
-    live = weights > 0.0
-
-    def evaluate(prm: FloatArray, jacobian: bool):
-        ray = np.vstack([prm[0], prm[1], np.ones(prm.shape[1])])
-        Rray = np.einsum("ijt,jt->it", Ra, ray)
-        p = oa + Rray / prm[2]
-        proj = project_rows(obs, Rb, ob, p[:, tracks])
-        r = proj.r * sw
-        behind = ~proj.valid & live
-        cost = segment_sum(r[0] ** 2 + r[1] ** 2 + behind * 1e12, starts)
-        if not jacobian:
-            return cost, p, None, None
-        # d p / d (alpha, beta, rho) per track, (3, 3, T).
-        dp = np.empty((3, 3, prm.shape[1]))
-        dp[:, 0] = Ra[:, 0] / prm[2]
-        dp[:, 1] = Ra[:, 1] / prm[2]
-        dp[:, 2] = -Rray / prm[2] ** 2
-        # J = W dm/dq R^T dp, per row (2, 3, N).
-        Jp = np.einsum("ain,jin->ajn", proj.whitened_dm(obs.whiten_t) * sw, Rb)
-        J = np.einsum("ajn,jkn->akn", Jp, dp[:, :, tracks])
-        N = segment_sum(np.einsum("akn,aln->kln", J, J), starts)
-        g = segment_sum(np.einsum("akn,an->kn", J, r), starts)
-        return cost, p, N, g
-
-    lam = np.full(params.shape[1], 1e-3)
-    cost, p, N, g = evaluate(params, True)
-    eye = np.eye(3)[:, :, None]
-    for _ in range(iterations):
-        diag = np.maximum(np.einsum("iit->it", N), 1e-12)
-        A = N + lam * diag[:, None, :] * eye
-        At = np.moveaxis(A, -1, 0)
-        step = -np.linalg.solve(At, g.T[..., None])[..., 0].T
-        # Where the step would cross the inverse-depth floor, hold rho there and take the
-        # model's best step in (alpha, beta) alone: the exact minimiser under the bound.
-        low = params[2] + step[2] < MIN_INVERSE_DEPTH
-        if low.any():
-            d_rho = MIN_INVERSE_DEPTH - params[2, low]
-            rhs = g[:2, low] + A[:2, 2, low] * d_rho
-            step[:2, low] = -np.linalg.solve(At[low][:, :2, :2], rhs.T[..., None])[..., 0].T
-            step[2, low] = d_rho
-        trial = params + step
-        new_cost, new_p, _, _ = evaluate(trial, False)
-        better = new_cost <= cost
-        params = np.where(better, trial, params)
-        p = np.where(better, new_p, p)
-        cost = np.where(better, new_cost, cost)
-        lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-9, 1e9)
-        if np.max(np.abs(step), initial=0.0) < tolerance:
-            break
-        if better.any():  # a rejected step leaves that track's system as it was
-            cost, p, N, g = evaluate(params, True)
-    return p
+    return project_rows(obs, Rb, ob, np.ascontiguousarray(points.T)[:, obs.tracks]).norms

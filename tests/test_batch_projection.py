@@ -20,11 +20,11 @@ from apcc_graph.estimation.batch import GraphOptions, batch_estimate, projection
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import CameraTerms
 from apcc_graph.estimation.robust import gnc_schedule
-from apcc_graph.model.robot import Robot
+from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence, Tracks
-from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.simulation.simulator import Simulation, simulate
 from factors.track_points import cut_tracks
 

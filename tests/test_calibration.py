@@ -11,11 +11,12 @@ import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.calibration.fit import calibrate_from_tip, fit_segment, fit_thetas
+from apcc_graph.calibration.closed_form import calibrate_from_tip
 from apcc_graph.calibration.files import calibrate_measurements, load_tip_measurements
+from apcc_graph.calibration.fit import fit_segment, fit_thetas
 from apcc_graph.model.kinematics import apcc_in_plane, pcc_in_plane
-from apcc_graph.simulation.planar_curves import growing_curvature_tip
 from apcc_graph.model.segment import Segment
+from apcc_graph.simulation.planar_curves import growing_curvature_tip
 
 
 def paper_tip() -> tuple[float, float]:

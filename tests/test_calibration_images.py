@@ -18,35 +18,35 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.calibration.fit import calibrate_from_tip
+from apcc_graph.calibration.closed_form import calibrate_from_tip
 from apcc_graph.calibration.files import TipMeasurements, calibrate_measurements
-from apcc_graph.calibration.photos import (
+from apcc_graph.calibration.image_setup import (
     CalibrationImagesSetup,
     MarkerLayout,
+    load_setup,
+    setup_to_toml,
+)
+from apcc_graph.calibration.marker_detection import detect_markers, marker_detector
+from apcc_graph.calibration.marker_geometry import (
     TipPose,
     base_T_base_marker,
     base_T_tip_marker,
-    calibrate_images,
-    detect_markers,
     fit_marker_corners,
-    load_setup,
     marker_corners,
-    marker_detector,
-    measure_image,
-    setup_to_toml,
     tip_from_marker_poses,
 )
-from apcc_graph.model.camera import TipCamera
+from apcc_graph.calibration.photos import calibrate_images, measure_image
 from apcc_graph.cli import main
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.kinematics import apcc_in_plane
+from apcc_graph.model.segment import Segment
 from apcc_graph.simulation.calibration_photos import (
     DEFAULT_CAMERA,
     render_calibration_image,
     side_camera_pose,
     write_calibration_images,
 )
-from apcc_graph.io.robot_file import load_robot
-from apcc_graph.model.segment import Segment
 
 REPO = Path(__file__).resolve().parents[1]
 SWEEP = REPO / "data/calibration/images_sweep"

@@ -10,9 +10,9 @@ import pytest
 
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.result import Estimate
+from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.kinematics import apcc_transform
 from apcc_graph.model.robot import Robot
-from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.simulator import simulate, simulate_sequence
 

@@ -11,10 +11,10 @@ import pytest
 
 import apcc_graph
 from apcc_graph.cli import main
-from apcc_graph.io.estimates import load_theta_csv, save_estimate
 from apcc_graph.evaluation.accuracy import compare
-from apcc_graph.io.sequence_folder import save_sequence
+from apcc_graph.io.estimates import load_theta_csv, save_estimate
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.io.sequence_folder import save_sequence
 from apcc_graph.simulation.simulator import simulate_sequence
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"

@@ -12,20 +12,12 @@ import pytest
 from helpers import random_pose
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.model.kinematics import (
-    apcc_transform,
-    apcc_transform_derivative,
-    apcc_transform_scalar,
-)
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.kinematics import apcc_transform, apcc_transform_derivative
+from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
 from apcc_graph.simulation.simulator import simulate
-from factors.epipolar import (
-    epipolar_factor,
-    epipolar_frame_factor,
-    epipolar_frame_residual,
-    epipolar_residual,
-    robust_weights,
-)
+from factors.epipolar import epipolar_factor, epipolar_frame_factor, robust_weights
+from factors.epipolar_residual import epipolar_frame_residual, epipolar_residual
 from factors.priors import joint_limit_factor, joint_limit_residual, motion_prior
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from helpers import random_pose
 
-from apcc_graph.model.camera import TipCamera
 from apcc_graph.frontend.geometry import (
     SegmentTwoView,
     epipolar_errors,
@@ -18,6 +17,7 @@ from apcc_graph.frontend.geometry import (
     sampson_error,
     skew,
 )
+from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.kinematics import apcc_transform
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment

@@ -16,11 +16,11 @@ import cv2
 import numpy as np
 import pytest
 
-from apcc_graph import atomic_write
 from apcc_graph.cli import main
+from apcc_graph.io import atomic as atomic_write
+from apcc_graph.io.robot_file import load_robot
 from apcc_graph.io.sequence_folder import SequenceWarning, load_sequence, save_sequence
 from apcc_graph.model.robot import Robot
-from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.sequence import Sequence, Tracks
 from apcc_graph.simulation.simulator import simulate_sequence
 

@@ -11,10 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from apcc_graph.model.joint_chain import apcc_joint_frames, apcc_phi
 from apcc_graph.model.kinematics import (
     apcc_body_twists,
-    apcc_joint_frames,
-    apcc_phi,
     apcc_transform,
     apcc_transform_derivative,
     pcc_transform,

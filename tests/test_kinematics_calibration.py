@@ -10,8 +10,8 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.model.kinematics import (
-    apcc_transform,
+from apcc_graph.model.kinematics import apcc_transform
+from apcc_graph.model.scalar_kinematics import (
     apcc_transform_scalar,
     apcc_transform_scalar_calibration,
 )

@@ -171,7 +171,8 @@ def _comments(source: str) -> dict[int, str]:
     return {tok.start[0]: tok.string for tok in tokens if tok.type == tokenize.COMMENT}
 
 
-def long_functions(path: Path, limit: int = MAX_FUNCTION_LINES) -> list[tuple[str, int]]:
+def long_functions(path: Path, limit: int = MAX_FUNCTION_LINES,
+                   root: Path = ROOT) -> list[tuple[str, int]]:
     """Functions of ``path`` longer than ``limit`` lines (docstring excluded) with no
     ``# Long:`` reason among their first lines, as ``(name:line, length)``."""
     source = path.read_text()
@@ -187,7 +188,7 @@ def long_functions(path: Path, limit: int = MAX_FUNCTION_LINES) -> list[tuple[st
         reason = any(comments.get(line, "").startswith("# Long:")
                      for line in range(node.lineno, body[0].lineno + 4))
         if length > limit and not reason:
-            found.append((f"{path.relative_to(ROOT)}:{node.lineno} {node.name}", length))
+            found.append((f"{path.relative_to(root)}:{node.lineno} {node.name}", length))
     return found
 
 
@@ -226,7 +227,8 @@ def test_the_checks_fail_on_an_upward_import_and_on_a_circle() -> None:
 def test_the_import_reader_sees_lazy_relative_and_facade_imports(tmp_path: Path) -> None:
     (tmp_path / "apcc_graph" / "model").mkdir(parents=True)
     (tmp_path / "factors").mkdir()
-    (tmp_path / "apcc_graph" / "__init__.py").write_text('_EXPORTS = {"Segment": "apcc_graph.model.a"}\n')
+    facade = '_EXPORTS = {"Segment": "apcc_graph.model.a"}\n'
+    (tmp_path / "apcc_graph" / "__init__.py").write_text(facade)
     (tmp_path / "apcc_graph" / "model" / "__init__.py").write_text("from . import a\n")
     (tmp_path / "apcc_graph" / "model" / "a.py").write_text("def f():\n    from .b import g\n")
     (tmp_path / "apcc_graph" / "model" / "b.py").write_text("import factors.c\n")
@@ -258,9 +260,30 @@ def test_the_function_size_check_counts_code_not_docstrings(tmp_path: Path) -> N
     doc = '    """' + "\n" * 30 + '    """\n'
     (tmp_path / "m.py").write_text(f"def long():\n{doc}{body}\ndef short():\n{doc}    return 1\n"
                                    f"def excused():\n    # Long: a table of cases\n{body}")
-    global ROOT
-    saved, ROOT = ROOT, tmp_path
-    try:
-        assert long_functions(tmp_path / "m.py") == [("m.py:1 long", 61)]
-    finally:
-        ROOT = saved
+    # 62 lines of code: the ``def`` line and 61 statements; the docstring does not count.
+    assert long_functions(tmp_path / "m.py", root=tmp_path) == [("m.py:1 long", 62)]
+
+
+def summary() -> str:
+    """The figures of the layout: modules per subpackage, the largest module and function, and
+    the number of import circles (``python tests/test_layers.py``)."""
+    counts: dict[str, int] = {}
+    for module in FILES:
+        parts = module.split(".")
+        package = ".".join(parts[:2]) if parts[0] == "apcc_graph" and len(parts) > 2 else (
+            module if FILES[module].name == "__init__.py" else ".".join(parts[:-1]) or module)
+        counts[package] = counts.get(package, 0) + 1
+    sizes = {module: path.read_text().count("\n") for module, path in FILES.items()}
+    largest = max(sizes, key=sizes.__getitem__)
+    functions = [row for path in FILES.values() for row in long_functions(path, limit=0)]
+    name, length = max(functions, key=lambda row: row[1])
+    lines = [f"{package:28s} {count:3d} modules" for package, count in sorted(counts.items())]
+    lines += [f"largest module: {largest} ({sizes[largest]} lines)",
+              f"largest function: {name} ({length} lines without its docstring)",
+              f"import circles: {len(import_circles(GRAPH))}",
+              f"upward imports: {len(layer_violations(GRAPH))}"]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(summary())

@@ -11,6 +11,7 @@ import pytest
 
 from apcc_graph.bench.accuracy import run_accuracy_benchmark
 from apcc_graph.bench.calibration import run_calibration_benchmark
+from apcc_graph.io.robot_file import load_robot
 from apcc_graph.plots import (
     angles_figure,
     draw_robot,
@@ -19,7 +20,6 @@ from apcc_graph.plots import (
     save_figure,
     tip_trajectories_figure,
 )
-from apcc_graph.io.robot_file import load_robot
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = load_robot(REPO / "data/robots/planar_three.toml")

@@ -17,17 +17,17 @@ from hypothesis import strategies as st
 from apcc_graph import Robot, Segment, TipCamera
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.simulation.simulator import simulate
-from factors.camera_chain import camera_poses
+from factors.camera_chain import CameraChain, camera_poses
 from factors.projection import (
-    CameraChain,
     ProjectionFactor,
     build_observations,
     chunk_tracks,
     compress,
     frame_key,
-    reduced_system,
 )
-from factors.track_points import MIN_DEPTH, TrackObservations, triangulate
+from factors.reduced_system import reduced_system
+from factors.track_points import MIN_DEPTH, TrackObservations
+from factors.triangulation import triangulate
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),

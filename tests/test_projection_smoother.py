@@ -33,11 +33,12 @@ from apcc_graph.estimation.projection_smoother import (
     ProjectionFixedLagSmoother,
     projection_smoother_estimate,
 )
-from apcc_graph.estimation.smoother import SmootherFrame, smoother_estimate
-from apcc_graph.model.robot import Robot
-from apcc_graph.io.robot_file import load_robot
-from apcc_graph.model.sequence import FrameObservations, Sequence
+from apcc_graph.estimation.smoother import smoother_estimate
+from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import FrameObservations, Sequence
 from apcc_graph.simulation.simulator import Simulation, simulate
 
 REPO = Path(__file__).resolve().parents[1]

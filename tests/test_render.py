@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.model.camera import TipCamera
 from apcc_graph.frontend.tracking import track_images
+from apcc_graph.model.camera import TipCamera
 from apcc_graph.simulation.render import (
     TEXTURE_SIZE,
     SensorModel,

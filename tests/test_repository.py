@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import re
 from pathlib import Path
 
@@ -52,3 +53,39 @@ def test_readme_links_and_figure_exist() -> None:
     for target in re.findall(r"\]\(([^)#]+)\)", text):
         if "://" not in target:
             assert (ROOT / target).exists(), target
+
+
+def _documents() -> list[Path]:
+    return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")),
+            *sorted((ROOT / "data").rglob("*.md")), *sorted((ROOT / "notebooks").glob("*.md"))]
+
+
+def _resolves(dotted: str) -> bool:
+    parts = dotted.split(".")
+    for cut in range(len(parts), 0, -1):
+        try:
+            value = importlib.import_module(".".join(parts[:cut]))
+        except ModuleNotFoundError:
+            continue
+        try:
+            for name in parts[cut:]:
+                value = getattr(value, name)
+        except AttributeError:
+            return False
+        return True
+    return False
+
+
+def test_module_paths_named_in_the_documents_exist() -> None:
+    """Every dotted name (``apcc_graph.x.y``, ``factors.x``) and source path
+    (``apcc_graph/x.py``) the README and docs/ name resolves: a moved module breaks this."""
+    missing = []
+    for doc in _documents():
+        text = doc.read_text()
+        for dotted in set(re.findall(r"\b((?:apcc_graph|factors)(?:\.[A-Za-z_]\w*)+)", text)):
+            if not _resolves(dotted.rstrip(".")):
+                missing.append(f"{doc.relative_to(ROOT)}: {dotted}")
+        for path in set(re.findall(r"\b((?:apcc_graph|factors|tests)/[\w/]+\.py)\b", text)):
+            if not (ROOT / path).exists():
+                missing.append(f"{doc.relative_to(ROOT)}: {path}")
+    assert missing == []

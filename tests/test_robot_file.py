@@ -12,11 +12,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from apcc_graph import atomic_write
+from apcc_graph.io import atomic as atomic_write
+from apcc_graph.io.robot_file import ROBOT_FORMAT, load_robot, robot_to_toml, save_robot
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.robot import Robot
-from apcc_graph.io.robot_file import load_robot, save_robot
-from apcc_graph.io.robot_file import ROBOT_FORMAT, robot_to_toml
 from apcc_graph.model.segment import Segment
 
 REPO = Path(__file__).resolve().parents[1]
@@ -103,7 +102,7 @@ def test_planar_three_loads_with_a_camera_on_every_segment() -> None:
 
 
 def test_the_public_and_file_module_loaders_agree() -> None:
-    from apcc_graph import robot_file
+    from apcc_graph.io import robot_file
 
     assert robot_file.load_robot(PLANAR_THREE) == load_robot(PLANAR_THREE)
 

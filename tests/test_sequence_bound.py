@@ -12,8 +12,8 @@ import pytest
 from helpers import random_pose
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.model.sequence import Sequence, Tracks
 from apcc_graph.evaluation.sequence_bound import SequenceBound, fisher_information, sequence_bound
+from apcc_graph.model.sequence import Sequence, Tracks
 from apcc_graph.simulation.simulator import Simulation, simulate
 
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),

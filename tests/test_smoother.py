@@ -15,12 +15,13 @@ import pytest
 
 import apcc_graph
 from apcc_graph.cli import main
-from apcc_graph.io.estimates import load_theta_csv
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate
-from apcc_graph.estimation.smoother import FixedLagSmoother, SmootherFrame, smoother_estimate
+from apcc_graph.estimation.smoother import FixedLagSmoother, smoother_estimate
+from apcc_graph.estimation.window import SmootherFrame
+from apcc_graph.io.estimates import load_theta_csv
+from apcc_graph.io.robot_file import load_robot
 from apcc_graph.io.sequence_folder import save_sequence
 from apcc_graph.model.robot import Robot
-from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.sequence import FrameObservations, Sequence
 from apcc_graph.simulation.simulator import simulate, simulate_sequence
 

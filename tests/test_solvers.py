@@ -15,8 +15,10 @@ from apcc_graph.frontend.geometry import (
     essential_matrix,
     relative_camera_pose,
 )
+from apcc_graph.frontend.one_point import one_point
+from apcc_graph.frontend.ransac import one_point_ransac, refine_theta
+from apcc_graph.frontend.roots import DEFAULT_GRID_STEP
 from apcc_graph.model.segment import Segment
-from apcc_graph.frontend.one_point import DEFAULT_GRID_STEP, one_point, one_point_ransac, refine_theta
 
 FOCAL = 500.0
 HALF_FOV = (0.64, 0.48)  # tan of the half field of view of a 640x480, f = 500 camera
@@ -556,8 +558,8 @@ def test_grid_step_constant() -> None:
 @pytest.mark.parametrize("psi", [0.0, 0.7])
 def test_epipolar_basis_matches_direct_sampson_errors(moving_base: bool, psi: float) -> None:
     """E(theta) = sum_k phi_k(theta) E_k exactly: errors, derivatives and coefficients agree."""
+    from apcc_graph.frontend.basis import EpipolarBasis, constraint_coefficients
     from apcc_graph.frontend.geometry import SegmentTwoView, epipolar_errors
-    from apcc_graph.frontend.one_point import EpipolarBasis, constraint_coefficients
 
     rng = np.random.default_rng(21)
     seg = Segment(0.4, k=0.31, delta_max=math.radians(7.0), theta_max=1.2)

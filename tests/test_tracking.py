@@ -100,8 +100,8 @@ def test_bad_images_are_refused_with_the_frame_named() -> None:
 @pytest.fixture()
 def image_folder(tmp_path):
     """A 6-frame sequence folder whose camera 1 images pan across a texture (no tracks yet)."""
-    from apcc_graph.io.sequence_folder import save_sequence
     from apcc_graph.io.robot_file import load_robot
+    from apcc_graph.io.sequence_folder import save_sequence
     from apcc_graph.model.sequence import Sequence
 
     robot = load_robot(ROBOT)

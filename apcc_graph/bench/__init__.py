@@ -1,5 +1,9 @@
 """Benchmarks behind ``apcc-graph bench ...``: each returns a result object with its figures and
-the ratios against the peers measured in the same run. They are commands, never timed tests."""
+the ratios against the peers measured in the same run. They are commands, never timed tests.
+
+May import: every library layer (model to evaluation) and the ``apcc_graph`` facade; the plots
+and the command line import the benchmarks, never the reverse.
+"""
 
 from __future__ import annotations
 

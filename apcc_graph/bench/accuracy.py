@@ -5,10 +5,11 @@ Protocol (paper V.B; docs/estimation.md, "The paper's two-view experiment"): L =
 carry almost no parallax and are the chain's "no-motion" case), fixed base and moving base (rotation
 alpha in [-5, 5] deg about a pivot 1 m below the base, so the base moves under 0.1 m), Gaussian
 pixel noise 0 to 2 px, ``points`` correspondences at 1-5 m, no outliers, 5000 trials per point by
-default. Each trial is solved by :func:`apcc_graph.frontend.one_point.one_point_ransac`, and its bound is
-:func:`apcc_graph.evaluation.two_view_bound.crlb_theta` at the truth. Reported per noise level: mean and median
-|error|, the median bound, and efficiency = median(|error| / bound) / 0.6745 (the median of
-|N(0, 1)|), which is 1.0 for an estimator that reaches the bound.
+default. Each trial is solved by :func:`apcc_graph.frontend.one_point_ransac`, and its bound
+is :func:`apcc_graph.evaluation.two_view_bound.crlb_theta` at the truth. Reported per noise
+level: mean and median |error|, the median bound, and efficiency =
+median(|error| / bound) / 0.6745 (the median of |N(0, 1)|), which is 1.0 for an estimator that
+reaches the bound.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from tqdm import tqdm
 
 from apcc_graph.bench.scenes import make_case
 from apcc_graph.evaluation.two_view_bound import crlb_theta
-from apcc_graph.frontend.one_point import one_point_ransac
+from apcc_graph.frontend import one_point_ransac
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.segment import Segment
 

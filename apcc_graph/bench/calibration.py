@@ -1,9 +1,10 @@
 """``apcc-graph bench calibration``: APCC sweep fit vs the paper's one-pose method vs PCC.
 
 A synthetic sweep of a rod whose curvature grows along the arc
-(:func:`apcc_graph.simulation.planar_curves.growing_curvature_tip`), measured with Gaussian noise on the tip
-position and angle. Each model is fitted to the noisy poses and its tip is compared with the true
-(noise-free) tip at every pose: RMS position error (metres) and RMS tip-angle error (radians).
+(:func:`apcc_graph.simulation.planar_curves.growing_curvature_tip`), measured with Gaussian
+noise on the tip position and angle. Each model is fitted to the noisy poses and its tip is
+compared with the true (noise-free) tip at every pose: RMS position error (metres) and RMS tip-
+angle error (radians).
 """
 
 from __future__ import annotations
@@ -13,7 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apcc_graph.calibration.fit import calibrate_from_tip, fit_segment, fit_thetas
+from apcc_graph.calibration.closed_form import calibrate_from_tip
+from apcc_graph.calibration.fit import fit_segment, fit_thetas
+from apcc_graph.model.arrays import rms
 from apcc_graph.model.kinematics import apcc_in_plane, pcc_in_plane
 from apcc_graph.model.segment import Segment
 from apcc_graph.simulation.planar_curves import growing_curvature_tip
@@ -53,6 +56,12 @@ class CalibrationBenchmark:
         return next(r for r in self.rows if r.model == model)
 
 
+def _apcc_tips(seg: Segment, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(N, 2)`` tip positions ``(x, z)`` (metres) and ``(N,)`` tip angles of ``seg``."""
+    planar = apcc_in_plane(thetas, seg)
+    return np.column_stack([planar.px, planar.pz]), seg.tip_angle(thetas)
+
+
 def run_calibration_benchmark(
     length: float = 0.5,
     growth: float = 2.0,
@@ -81,35 +90,24 @@ def run_calibration_benchmark(
     measured = truth + rng.normal(0.0, noise_position, truth.shape)
     measured_angle = angle + rng.normal(0.0, noise_angle, angle.shape)
 
-    model_tips = {}
+    model_tips: dict[str, np.ndarray] = {}
 
-    def score(
-        name: str, tips: np.ndarray, angles: np.ndarray, k: float, delta_max: float
-    ) -> ModelError:
+    def score(name: str, seg: Segment | None, tips: np.ndarray, angles: np.ndarray) -> ModelError:
         model_tips[name] = tips
-        return ModelError(
-            model=name,
-            rms_position=float(np.sqrt(np.mean(np.sum((tips - truth) ** 2, axis=1)))),
-            rms_angle=float(np.sqrt(np.mean((angles - angle) ** 2))),
-            k=k,
-            delta_max=delta_max,
-        )
-
-    def score_apcc(name: str, seg: Segment, fitted: np.ndarray) -> ModelError:
-        planar = apcc_in_plane(fitted, seg)
-        return score(name, np.column_stack([planar.px, planar.pz]), seg.tip_angle(fitted),
-                     seg.k, seg.delta_max)
+        return ModelError(model=name, rms_position=float(rms(np.linalg.norm(tips - truth, axis=1))),
+                          rms_angle=float(rms(angles - angle)),
+                          k=seg.k if seg else math.nan,
+                          delta_max=seg.delta_max if seg else math.nan)
 
     sweep = fit_segment(measured, measured_angle, length)
-    rows = [score_apcc("APCC, fit_segment (sweep)", sweep.segment, sweep.thetas)]
     top = int(np.argmax(thetas))
     one = calibrate_from_tip(measured[top], float(measured_angle[top]), length).segment
-    rows.append(score_apcc("APCC, calibrate_from_tip (paper, one pose)", one,
-                           fit_thetas(one, measured, measured_angle).thetas))
+    rows = [score(name, seg, *_apcc_tips(seg, fitted)) for name, seg, fitted in (
+        ("APCC, fit_segment (sweep)", sweep.segment, sweep.thetas),
+        ("APCC, calibrate_from_tip (paper, one pose)", one,
+         fit_thetas(one, measured, measured_angle).thetas))]
     px, pz = pcc_in_plane(sweep.pcc.thetas, length)
-    rows.append(
-        score("PCC (best fit)", np.column_stack([px, pz]), sweep.pcc.thetas, math.nan, math.nan)
-    )
+    rows.append(score("PCC (best fit)", None, np.column_stack([px, pz]), sweep.pcc.thetas))
     return CalibrationBenchmark(
         length=length,
         growth=growth,

@@ -1,12 +1,12 @@
 """``apcc-graph bench images``: the whole pipeline on pixels, images -> tracks -> smoother.
 
-For each seed, one simulated motion of the robot in the textured room (:mod:`apcc_graph.simulation.render`)
-is observed twice:
+For each seed, one simulated motion of the robot in the textured room
+(:mod:`apcc_graph.simulation.render`) is observed twice:
 
 - **images**: every tip camera's view rendered (scikit-image textures, sensor noise), tracked by
   :class:`~apcc_graph.frontend.tracking.KLTTracker`, then estimated;
-- **simulated 1 px tracks** (the peer): :func:`~apcc_graph.simulation.simulator.simulate` of the same motion
-  with its point room and 1 px Gaussian pixel noise, estimated the same way.
+- **simulated 1 px tracks** (the peer): :func:`~apcc_graph.simulation.simulator.simulate` of
+  the same motion with its point room and 1 px Gaussian pixel noise, estimated the same way.
 
 Both go through the same estimator (the fixed-lag smoother, and the chain for reference), started
 from the true first configuration. Reported per seed and segment: RMS error (degrees), the ratio

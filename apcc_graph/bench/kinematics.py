@@ -18,7 +18,8 @@ import gtsam
 import numpy as np
 
 from apcc_graph.bench import best_time
-from apcc_graph.model.kinematics import apcc_in_plane, apcc_joint_frames
+from apcc_graph.model.joint_chain import apcc_joint_frames
+from apcc_graph.model.kinematics import apcc_in_plane
 from apcc_graph.model.robot import Robot
 
 

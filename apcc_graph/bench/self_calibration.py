@@ -9,8 +9,8 @@ seed, in one run:
   ``calibrate=True`` (priors of ``(0.05, 5 deg)`` around the wrong values): RMS error per
   segment;
 - the bound of the angles with the models known, and with them unknown (the same priors):
-  :func:`apcc_graph.evaluation.sequence_bound.sequence_bound` with ``calibration_sigmas``, which also
-  bounds each k and delta_max;
+  :func:`apcc_graph.evaluation.sequence_bound.sequence_bound` with ``calibration_sigmas``, which
+  also bounds each k and delta_max;
 - the calibrated k and delta_max, their errors, reported sigmas and bound.
 
 A self-calibrating estimator cannot beat the bound with unknown models: the ratio of that bound
@@ -31,6 +31,7 @@ from apcc_graph.bench.smoother import NOISE_PX, ROBOT_FILE, THETA0_SIGMA, _simul
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.arrays import rms
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence
@@ -87,9 +88,6 @@ def run_self_calibration_benchmark(frames: int = 600, seeds: SequenceOf[int] = (
         theta0 = seq.thetas[0]
         wseq = Sequence(wrong, seq.timestamps, seq.tracks, seq.world_T_base, None, seq.psis)
 
-        def rms(est: np.ndarray, truth: np.ndarray = seq.thetas) -> np.ndarray:
-            return np.sqrt(np.mean((est - truth) ** 2, axis=0))
-
         true = batch_estimate(seq, theta0=theta0, marginals=False)
         off = batch_estimate(wseq, theta0=theta0, marginals=False)
         start = time.perf_counter()
@@ -101,7 +99,8 @@ def run_self_calibration_benchmark(frames: int = 600, seeds: SequenceOf[int] = (
                                  calibration_sigmas=CALIBRATION_SIGMAS)
         assert unknown.calibration is not None and cal.calibration_sigmas is not None
         runs.append(SelfCalibrationRun(
-            seed, rms(true.thetas), rms(off.thetas), rms(cal.thetas), known.rms(),
+            seed, rms(true.thetas - seq.thetas), rms(off.thetas - seq.thetas),
+            rms(cal.thetas - seq.thetas), known.rms(),
             unknown.rms(), np.array([[s.k, s.delta_max] for s in robot.segments]),
             np.array([[s.k, s.delta_max] for s in cal.robot.segments]),
             cal.calibration_sigmas, unknown.calibration, seconds))

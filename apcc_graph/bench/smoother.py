@@ -6,11 +6,11 @@ frame), 1 px noise, 10% and 30% outliers, 30 fps, smooth motion, several seeds. 
 estimator starts from the true first configuration with a 0.1 deg prior (the chain starts
 exactly there). Every figure is measured here, in the same run:
 
-- the Cramer-Rao bound of each sequence (:mod:`apcc_graph.evaluation.sequence_bound`: every observation
-  once, each track's point a nuisance, 0.1 deg start prior), per segment and per 100-frame
-  window;
-- the bound of a fixed-lag smoother (:func:`apcc_graph.evaluation.sequence_bound.lag_bound`): a smoother
-  lets frame f go after frame f + lag, so no later observation can inform its final
+- the Cramer-Rao bound of each sequence (:mod:`apcc_graph.evaluation.sequence_bound`: every
+  observation once, each track's point a nuisance, 0.1 deg start prior), per segment and per
+  100-frame window;
+- the bound of a fixed-lag smoother (:func:`apcc_graph.evaluation.sequence_bound.lag_bound`): a
+  smoother lets frame f go after frame f + lag, so no later observation can inform its final
   estimate; sampled every 30 frames, beside the smoothers;
 - accuracy: RMS error per segment of the paper's chain, the fixed-lag smoother (lag 1 s,
   projection model: the default), the batch (projection model) and the epipolar smoother,
@@ -42,8 +42,9 @@ from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.evaluation.sequence_bound import lag_bound, sequence_bound
+from apcc_graph.evaluation.sequence_bound import LagBound, SequenceBound, lag_bound, sequence_bound
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.arrays import rms, window_rms
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.simulator import Simulation, simulate
@@ -120,11 +121,6 @@ def _simulate(robot: Robot, frames: int, outliers: float, seed: int) -> Simulati
                     fps=FPS, scene="room", n_points=N_POINTS)
 
 
-def _window_rms(errors: np.ndarray) -> np.ndarray:
-    return np.array([np.sqrt(np.mean(errors[s:s + WINDOW] ** 2, axis=0))
-                     for s in range(0, len(errors), WINDOW)])
-
-
 def _stream(smoother: FixedLagSmoother | ProjectionFixedLagSmoother, sequence: Sequence,
             progress: bool, label: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Final angles and sigmas ``(F, S)`` and update times ``(F,)`` of a smoother run."""
@@ -164,17 +160,27 @@ def _estimators(sim: Simulation, methods: SequenceOf[str], progress: bool
     return out
 
 
-def run_smoother_benchmark(
-    frames: int = 600,
-    seeds: SequenceOf[int] = (1, 2, 3, 4, 5),
-    outliers: SequenceOf[float] = (0.1, 0.3),
-    methods: SequenceOf[str] = METHODS,
-    long_frames: int = 3000,
-    memory_frames: int = 10_000,
-    progress: bool = False,
-) -> SmootherBenchmark:
-    """Run every part of the benchmark (see the module docstring)."""
-    robot = load_robot(ROBOT_FILE)
+def _run(case: str, seed: int, method: str, err: np.ndarray, sigmas: np.ndarray | None,
+         seconds: float, bound: SequenceBound, lagged: LagBound | None) -> Run:
+    """One estimator's errors ``(F, S)`` on one sequence, beside its bounds."""
+    nees = None
+    if sigmas is not None and np.all(np.isfinite(sigmas)):
+        nees = np.mean((err / sigmas) ** 2, axis=0)
+    lag_ratio = lag_window = None
+    if lagged is not None and method in SMOOTHERS:
+        sampled = err[lagged.frames]
+        lag_ratio = rms(sampled) / lagged.rms()
+        per = [rms(sampled[(lagged.frames >= s) & (lagged.frames < s + WINDOW)])
+               for s in range(0, len(err), WINDOW)]
+        lag_window = np.max(np.array(per) / lagged.window_rms(WINDOW), axis=0)
+    return Run(case, seed, method, rms(err), window_rms(err, WINDOW), bound.rms(),
+               bound.window_rms(WINDOW), seconds, nees, lag_ratio, lag_window)
+
+
+def _accuracy(robot: Robot, frames: int, seeds: SequenceOf[int], outliers: SequenceOf[float],
+              methods: SequenceOf[str], progress: bool) -> tuple[list[Run], list[float]]:
+    """Every method on every sequence beside its bounds, and the tracks per camera and frame
+    of each sequence."""
     runs: list[Run] = []
     tracks = []
     for rate in outliers:
@@ -189,49 +195,57 @@ def run_smoother_benchmark(
                       if any(m in SMOOTHERS for m in methods) else None)
             for method, (thetas, sigmas, seconds) in _estimators(sim, methods,
                                                                  progress).items():
-                err = thetas - seq.thetas
-                nees = None
-                if sigmas is not None and np.all(np.isfinite(sigmas)):
-                    nees = np.mean((err / sigmas) ** 2, axis=0)
-                lag_ratio = lag_window = None
-                if lagged is not None and method in SMOOTHERS:
-                    sampled = err[lagged.frames]
-                    lag_ratio = np.sqrt(np.mean(sampled**2, axis=0)) / lagged.rms()
-                    per = [np.sqrt(np.mean(sampled[(lagged.frames >= s)
-                                                   & (lagged.frames < s + WINDOW)] ** 2,
-                                           axis=0))
-                           for s in range(0, frames, WINDOW)]
-                    lag_window = np.max(np.array(per) / lagged.window_rms(WINDOW), axis=0)
-                runs.append(Run(case, seed, method, np.sqrt(np.mean(err**2, axis=0)),
-                                _window_rms(err), bound.rms(), bound.window_rms(WINDOW),
-                                seconds, nees, lag_ratio, lag_window))
+                runs.append(_run(case, seed, method, thetas - seq.thetas, sigmas, seconds,
+                                 bound, lagged))
+    return runs, tracks
 
-    # Drift and speed over a long run.
+
+def _drift(robot: Robot, frames: int, seed: int, progress: bool
+           ) -> tuple[float, float, float, float]:
+    """The default smoother over a long run: RMS over frames 100-400 and the last 300
+    (radians), and the median and 95th percentile of its update time (seconds)."""
+    seq = _simulate(robot, frames, 0.1, seed).sequence
+    assert seq.thetas is not None
+    sm = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
+    thetas, _, times = _stream(sm, seq, progress, "long run")
+    err = thetas - seq.thetas
+    return (float(rms(err[100:400], axis=None)), float(rms(err[-300:], axis=None)),
+            float(np.median(times)), float(np.percentile(times, 95)))
+
+
+def _memory(robot: Robot, frames: int, seed: int, progress: bool) -> tuple[float, float]:
+    """Resident set size (bytes) after 1,000 and after ``frames`` frames of a stream whose
+    finished frames are taken out, as a streaming user would."""
+    seq = _simulate(robot, frames, 0.1, seed).sequence
+    assert seq.thetas is not None
+    sm = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
+    rss_small = float("nan")
+    for f in tqdm(range(frames), desc="memory", disable=not progress, leave=False):
+        sm.update(seq.frame(f))
+        sm.pop_final()
+        if f + 1 == min(1000, frames):
+            rss_small = _rss()
+    return rss_small, _rss()
+
+
+def run_smoother_benchmark(
+    frames: int = 600,
+    seeds: SequenceOf[int] = (1, 2, 3, 4, 5),
+    outliers: SequenceOf[float] = (0.1, 0.3),
+    methods: SequenceOf[str] = METHODS,
+    long_frames: int = 3000,
+    memory_frames: int = 10_000,
+    progress: bool = False,
+) -> SmootherBenchmark:
+    """Run every part of the benchmark (see the module docstring)."""
+    robot = load_robot(ROBOT_FILE)
+    runs, tracks = _accuracy(robot, frames, seeds, outliers, methods, progress)
     early = late = median = p95 = float("nan")
     if long_frames:
-        seq = _simulate(robot, long_frames, 0.1, seeds[0] + 100).sequence
-        assert seq.thetas is not None
-        sm = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0],
-                                        uncertainty=False)
-        thetas, _, times = _stream(sm, seq, progress, "long run")
-        err = thetas - seq.thetas
-        early = float(np.sqrt(np.mean(err[100:400] ** 2)))
-        late = float(np.sqrt(np.mean(err[-300:] ** 2)))
-        median, p95 = float(np.median(times)), float(np.percentile(times, 95))
-
-    # Memory of a long stream; finished frames are taken out as a streaming user would.
+        early, late, median, p95 = _drift(robot, long_frames, seeds[0] + 100, progress)
     rss_small = rss_large = float("nan")
     if memory_frames:
-        seq = _simulate(robot, memory_frames, 0.1, seeds[0] + 200).sequence
-        assert seq.thetas is not None
-        sm = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0],
-                                        uncertainty=False)
-        for f in tqdm(range(memory_frames), desc="memory", disable=not progress, leave=False):
-            sm.update(seq.frame(f))
-            sm.pop_final()
-            if f + 1 == min(1000, memory_frames):
-                rss_small = _rss()
-        rss_large = _rss()
+        rss_small, rss_large = _memory(robot, memory_frames, seeds[0] + 200, progress)
     return SmootherBenchmark(frames, tuple(seeds), float(np.mean(tracks)), tuple(runs),
                              long_frames, early, late, median, p95, memory_frames, rss_small,
                              rss_large)
@@ -241,60 +255,72 @@ def _cells(values: np.ndarray, fmt: str = "7.3f") -> str:
     return " ".join(f"{v:{fmt}}" for v in values)
 
 
-def format_smoother_benchmark(r: SmootherBenchmark) -> str:
-    """The benchmark as the table ``apcc-graph bench smoother`` prints."""
+def _per_seed(r: SmootherBenchmark) -> list[str]:
     deg = np.degrees
-    out = [f"bench smoother: 3 x 0.3 m segments, room scene, ~{r.tracks_per_camera:.0f} tracks "
-           f"per camera and frame, {NOISE_PX:g} px noise, {FPS:.0f} fps, lag {LAG:g} s, start "
-           f"prior 0.1 deg, {r.frames} frames, seeds {', '.join(map(str, r.seeds))}", ""]
-    out.append("per seed: RMS per segment (deg), the Cramer-Rao bound of the same sequence, "
-               "RMS / bound")
-    out.append(f"  {'case':<13} {'seed':>4} {'method':<18} {'RMS seg 1..3':>23}   "
-               f"{'bound seg 1..3':>23}   {'RMS / bound':>17}  {'seconds':>8}")
+    out = ["per seed: RMS per segment (deg), the Cramer-Rao bound of the same sequence, "
+           "RMS / bound",
+           f"  {'case':<13} {'seed':>4} {'method':<18} {'RMS seg 1..3':>23}   "
+           f"{'bound seg 1..3':>23}   {'RMS / bound':>17}  {'seconds':>8}"]
     for run in r.runs:
         out.append(f"  {run.case:<13} {run.seed:>4} {run.method:<18} {_cells(deg(run.rms))}   "
                    f"{_cells(deg(run.bound))}   {_cells(run.ratio, '5.2f')}  "
                    f"{run.seconds:8.1f}")
-    out += ["", "summary over seeds: RMS / bound per segment (median, worst seed), the worst "
-            f"{WINDOW}-frame window / its bound, mean (error / sigma)^2"]
-    out.append(f"  {'case':<13} {'method':<18} {'median':>17}   {'worst seed':>17}   "
-               f"{'worst window':>17}   {'(e/s)^2':>17}")
-    cases = list(dict.fromkeys(run.case for run in r.runs))
-    methods = list(dict.fromkeys(run.method for run in r.runs))
-    medians: dict[tuple[str, str], np.ndarray] = {}
+    return out
+
+
+def _summary(r: SmootherBenchmark, cases: list[str], methods: list[str]) -> list[str]:
+    out = ["", "summary over seeds: RMS / bound per segment (median, worst seed), the worst "
+           f"{WINDOW}-frame window / its bound, mean (error / sigma)^2",
+           f"  {'case':<13} {'method':<18} {'median':>17}   {'worst seed':>17}   "
+           f"{'worst window':>17}   {'(e/s)^2':>17}"]
     for case in cases:
         for method in methods:
             rows = [run for run in r.runs if run.case == case and run.method == method]
             ratios = np.array([run.ratio for run in rows])
-            medians[case, method] = np.median(ratios, axis=0)
             windows = np.max([run.worst_window for run in rows], axis=0)
             nees = [run.nees for run in rows if run.nees is not None]
             honesty = _cells(np.mean(nees, axis=0), "5.2f") if nees else f"{'-':>17}"
-            out.append(f"  {case:<13} {method:<18} {_cells(medians[case, method], '5.2f')}   "
-                       f"{_cells(ratios.max(axis=0), '5.2f')}   {_cells(windows, '5.2f')}   "
+            out.append(f"  {case:<13} {method:<18} {_cells(np.median(ratios, axis=0), '5.2f')}"
+                       f"   {_cells(ratios.max(axis=0), '5.2f')}   {_cells(windows, '5.2f')}   "
                        f"{honesty}")
+    return out
+
+
+def _lag_rows(r: SmootherBenchmark, cases: list[str]) -> list[str]:
     lagged = [run for run in r.runs if run.lag_ratio is not None]
-    if lagged:
-        out += ["", f"smoothers against the bound of a {LAG:g} s fixed lag (frames sampled every "
-                f"{LAG_STEP}; no estimate of frame f may use frames after f + lag): RMS / lag "
-                "bound (median, worst seed), worst window"]
-        for case in cases:
-            for method in SMOOTHERS:
-                rows = [run for run in lagged if run.case == case and run.method == method]
-                if not rows:
-                    continue
-                ratios = np.array([run.lag_ratio for run in rows])
-                windows = np.max([run.lag_window for run in rows], axis=0)
-                out.append(f"  {case:<13} {method:<18} {_cells(np.median(ratios, axis=0), '5.2f')}"
-                           f"   {_cells(ratios.max(axis=0), '5.2f')}   {_cells(windows, '5.2f')}")
-    if len(cases) == 2:
-        out += ["", f"{cases[1]} / {cases[0]}: median RMS per segment"]
-        for method in methods:
-            a = np.median([run.rms for run in r.runs if run.case == cases[0]
-                           and run.method == method], axis=0)
-            b = np.median([run.rms for run in r.runs if run.case == cases[1]
-                           and run.method == method], axis=0)
-            out.append(f"  {method:<18} {_cells(b / a, '5.2f')}")
+    if not lagged:
+        return []
+    out = ["", f"smoothers against the bound of a {LAG:g} s fixed lag (frames sampled every "
+           f"{LAG_STEP}; no estimate of frame f may use frames after f + lag): RMS / lag "
+           "bound (median, worst seed), worst window"]
+    for case in cases:
+        for method in SMOOTHERS:
+            rows = [run for run in lagged if run.case == case and run.method == method]
+            if not rows:
+                continue
+            ratios = np.array([run.lag_ratio for run in rows])
+            windows = np.max([run.lag_window for run in rows], axis=0)
+            out.append(f"  {case:<13} {method:<18} {_cells(np.median(ratios, axis=0), '5.2f')}"
+                       f"   {_cells(ratios.max(axis=0), '5.2f')}   {_cells(windows, '5.2f')}")
+    return out
+
+
+def _outlier_ratio(r: SmootherBenchmark, cases: list[str], methods: list[str]) -> list[str]:
+    if len(cases) != 2:
+        return []
+    out = ["", f"{cases[1]} / {cases[0]}: median RMS per segment"]
+    for method in methods:
+        a = np.median([run.rms for run in r.runs if run.case == cases[0]
+                       and run.method == method], axis=0)
+        b = np.median([run.rms for run in r.runs if run.case == cases[1]
+                       and run.method == method], axis=0)
+        out.append(f"  {method:<18} {_cells(b / a, '5.2f')}")
+    return out
+
+
+def _speed_and_memory(r: SmootherBenchmark) -> list[str]:
+    deg = np.degrees
+    out = []
     if r.long_frames:
         out += ["", f"drift over {r.long_frames} frames (smoother, 10% outliers), RMS over all "
                 "segments (deg)",
@@ -312,4 +338,19 @@ def format_smoother_benchmark(r: SmootherBenchmark) -> str:
         out += ["", "memory: resident set size of a stream (finished frames taken out)",
                 f"  after 1,000 frames {r.rss_small / mb:8.1f} MB; after {r.memory_frames:,} "
                 f"frames {r.rss_large / mb:8.1f} MB; ratio {r.rss_large / r.rss_small:.3f}"]
+    return out
+
+
+def format_smoother_benchmark(r: SmootherBenchmark) -> str:
+    """The benchmark as the table ``apcc-graph bench smoother`` prints."""
+    cases = list(dict.fromkeys(run.case for run in r.runs))
+    methods = list(dict.fromkeys(run.method for run in r.runs))
+    out = [f"bench smoother: 3 x 0.3 m segments, room scene, ~{r.tracks_per_camera:.0f} tracks "
+           f"per camera and frame, {NOISE_PX:g} px noise, {FPS:.0f} fps, lag {LAG:g} s, start "
+           f"prior 0.1 deg, {r.frames} frames, seeds {', '.join(map(str, r.seeds))}", ""]
+    out += _per_seed(r)
+    out += _summary(r, cases, methods)
+    out += _lag_rows(r, cases)
+    out += _outlier_ratio(r, cases, methods)
+    out += _speed_and_memory(r)
     return "\n".join(out)

@@ -2,7 +2,7 @@
 
 One run, the same correspondences for every method: a tip camera (f = 500 px, 640x480) on a
 0.5 m segment moving 3-5 degrees, 0.5 px noise, N = 200 and 1000 correspondences, 0 / 30 / 50 %
-outliers. Methods: :func:`apcc_graph.frontend.one_point.one_point_ransac`; ``cv2.findEssentialMat``
+outliers. Methods: :func:`apcc_graph.frontend.one_point_ransac`; ``cv2.findEssentialMat``
 (RANSAC, prob 0.999, 1 px) + ``cv2.recoverPose``; ``cv2.findEssentialMat`` with
 ``cv2.USAC_DEFAULT``; ``poselib.estimate_relative_pose`` when PoseLib is installed (the ``bench``
 extra). The peers estimate a full relative pose; their rotation is turned into theta_b with the
@@ -22,7 +22,7 @@ import numpy as np
 
 from apcc_graph.bench import best_time
 from apcc_graph.bench.scenes import TwoViewCase, make_case
-from apcc_graph.frontend.one_point import one_point, one_point_ransac
+from apcc_graph.frontend import one_point, one_point_ransac
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.kinematics import apcc_transform
 from apcc_graph.model.segment import Segment

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.calibration.fit import ThetaFit, calibrate_from_tip, fit_segment, fit_thetas
+from apcc_graph.calibration.closed_form import calibrate_from_tip
+from apcc_graph.calibration.fit import ThetaFit, fit_segment, fit_thetas
 from apcc_graph.io.toml_fields import TomlTable, read_toml
 from apcc_graph.model.segment import Segment
 
@@ -109,9 +110,9 @@ class CalibrationReport:
 def calibrate_measurements(measurements: TipMeasurements) -> CalibrationReport:
     """Calibrate one segment from measured tip poses.
 
-    One pose: :func:`~apcc_graph.calibration.fit.calibrate_from_tip`; several:
-    :func:`~apcc_graph.calibration.fit.fit_segment`. Either way the report carries the residuals of the
-    APCC model and of the best PCC fit on the same poses.
+    One pose: :func:`~apcc_graph.calibration.closed_form.calibrate_from_tip`; several:
+    :func:`~apcc_graph.calibration.fit.fit_segment`. Either way the report carries the residuals
+    of the APCC model and of the best PCC fit on the same poses.
     """
     m = measurements
     if len(m.tip_angles) == 1:

@@ -1,17 +1,13 @@
-"""Deviation calibration of one segment: k and delta_max from measured tip poses.
+"""Least-squares calibration of one segment over a recorded sweep of tip poses
+(docs/estimation.md, "Calibrating a segment").
 
-Measurements are taken in the segment's bending plane with the base at the origin and the base
-axis along +z (docs/estimation.md, "Calibrating a segment"; the paper's figures use +y): a tip pose
-is its position ``(x, z)`` in metres and its tangent angle ``theta_hat`` in radians from the base
-axis.
+Tip poses are measured as for :mod:`~apcc_graph.calibration.closed_form`: ``(x, z)`` in the
+bending plane with the base at the origin and the base axis along +z (metres), and the tip
+tangent angle from that axis (radians).
 
-- :func:`calibrate_from_tip`: the paper's III.C steps 3-4 from one pose, in closed form.
-  ``theta = 2 atan2(x, z)`` (the tip lies on the chord at theta/2), ``delta = theta - theta_hat``
-  and ``k = |OP| / L = (L^2 - x^2 - z^2) / (2 L (L - z))`` where P is the point on the base axis
-  with ``|OP| + |P tip| = L`` (the ellipse with foci base and tip and major axis L).
-- :func:`fit_segment`: least squares over a recorded sweep: k, the deviation rate
-  ``delta_max / theta_max`` and one theta per pose, with standard deviations of k and delta_max, and
-  the residuals of the APCC fit and of the best PCC fit on the same data.
+- :func:`fit_segment`: k, the deviation rate ``delta_max / theta_max`` and one theta per pose,
+  with standard deviations of k and delta_max, and the residuals of the APCC fit and of the best
+  PCC fit on the same data.
 - :func:`fit_thetas`: the per-pose angles that best explain a sweep for a fixed model (a
   calibrated :class:`Segment` or PCC), to validate a calibration on other data.
 """
@@ -26,39 +22,13 @@ import scipy.optimize
 import scipy.sparse
 from numpy.typing import ArrayLike
 
-from apcc_graph.model.arrays import FloatArray
+from apcc_graph.calibration.closed_form import MIN_BEND, finite_array, positive_number
+from apcc_graph.model.arrays import FloatArray, rms
 from apcc_graph.model.kinematics import apcc_in_plane, pcc_in_plane
 from apcc_graph.model.segment import Segment
 
-MIN_BEND = math.radians(1.0)
-"""A pose bent less than this (radians) carries too little information about k."""
-
 REACH_SLACK = 0.05
 """A swept tip may lie up to this fraction beyond L (measurement noise near straight poses)."""
-
-
-@dataclass(frozen=True)
-class TipCalibration:
-    """Result of :func:`calibrate_from_tip` (metres, radians).
-
-    Attributes:
-        k: deviation coefficient.
-        delta_max: tip-angle deviation at ``theta_max``.
-        theta_max: the segment's bending limit used for ``delta_max``.
-        theta: the bend of the measured pose, ``2 atan2(x, z)``.
-        length: the segment length.
-    """
-
-    k: float
-    delta_max: float
-    theta_max: float
-    theta: float
-    length: float
-
-    @property
-    def segment(self) -> Segment:
-        """The calibrated segment."""
-        return Segment(self.length, k=self.k, delta_max=self.delta_max, theta_max=self.theta_max)
 
 
 @dataclass(frozen=True)
@@ -78,12 +48,12 @@ class ThetaFit:
     @property
     def rms_position(self) -> float:
         """RMS tip position error (metres)."""
-        return float(np.sqrt(np.mean(self.position_residuals**2)))
+        return float(rms(self.position_residuals, axis=None))
 
     @property
     def rms_angle(self) -> float:
         """RMS tip angle error (radians)."""
-        return float(np.sqrt(np.mean(self.angle_residuals**2)))
+        return float(rms(self.angle_residuals, axis=None))
 
 
 @dataclass(frozen=True)
@@ -121,94 +91,12 @@ class SweepCalibration:
         return self.apcc.thetas
 
 
-def _finite(name: str, value: ArrayLike, shape: tuple[int | None, ...]) -> FloatArray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim != len(shape) or any(
-        s is not None and s != a for s, a in zip(shape, arr.shape, strict=False)
-    ):
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
-        raise ValueError(f"{name} has shape {arr.shape}: expected {want}")
-    if not np.all(np.isfinite(arr)):
-        bad = np.argwhere(~np.isfinite(arr))[0]
-        raise ValueError(f"{name}{list(bad)}: expected finite values, got {arr[tuple(bad)]!r}")
-    return arr
-
-
-def _positive(name: str, value: float) -> float:
-    value = float(value)
-    if not math.isfinite(value) or value <= 0.0:
-        raise ValueError(f"{name} = {value!r}: expected a finite value > 0")
-    return value
-
-
-def calibrate_from_tip(
-    tip_position: ArrayLike,
-    tip_angle: float,
-    length: float,
-    theta_max: float | None = None,
-) -> TipCalibration:
-    """The paper's one-pose calibration (III.C steps 3-4), in closed form.
-
-    Args:
-        tip_position: ``(x, z)`` of the tip in the bending plane, base at the origin (metres).
-        tip_angle: measured tip tangent angle ``theta_hat`` from the base axis (radians).
-        length: segment length L (metres).
-        theta_max: the segment's bending limit (radians) if the photographed pose is not at it;
-            default: the pose's own bend ``|theta|`` (the paper photographs at theta_max).
-
-    Returns:
-        k, delta_max, theta_max and the pose's theta.
-
-    Raises:
-        ValueError: non-finite input, a tip at or beyond the segment's reach, a pose bent less than
-            1 degree, or a measurement that implies k or delta_max outside the model's range.
-    """
-    x, z = _finite("tip_position", tip_position, (2,))
-    tip_angle = float(_finite("tip_angle", tip_angle, ()))
-    length = _positive("length", length)
-    reach = math.hypot(x, z)
-    theta = 2.0 * math.atan2(x, z)
-    if reach > length:
-        raise ValueError(
-            f"tip_position ({x:g}, {z:g}) is {reach:g} m from the base, beyond the reach of a "
-            f"segment of length {length:g} m; check the units (metres) and the length"
-        )
-    if abs(theta) > math.pi:
-        raise ValueError(
-            f"tip_position ({x:g}, {z:g}) implies a bend of {math.degrees(theta):.1f} deg; "
-            "expected |theta| <= 180 deg with the base axis along +z"
-        )
-    if abs(theta) < MIN_BEND or reach == length:
-        raise ValueError(
-            f"the pose is bent only {math.degrees(theta):.3f} deg: k is not observable from a "
-            "straight or nearly straight segment; photograph it bent to theta_max"
-        )
-    k = (length**2 - reach**2) / (2.0 * length * (length - z))
-    if not 0.0 < k < 0.5:
-        raise ValueError(
-            f"tip_position ({x:g}, {z:g}) implies k = {k:.4g}, outside the APCC range 0 < k < 0.5;"
-            " check the tip position and the length"
-        )
-    if theta_max is None:
-        theta_max = abs(theta)
-    else:
-        theta_max = _positive("theta_max", theta_max)
-    delta_max = (theta - tip_angle) * theta_max / theta
-    if not abs(delta_max) < theta_max:
-        raise ValueError(
-            f"tip_angle = {math.degrees(tip_angle):.2f} deg at a bend of "
-            f"{math.degrees(theta):.2f} deg implies delta_max = {math.degrees(delta_max):.2f} deg, "
-            f"expected |delta_max| < theta_max = {math.degrees(theta_max):.2f} deg"
-        )
-    return TipCalibration(k=k, delta_max=delta_max, theta_max=theta_max, theta=theta, length=length)
-
-
 def _check_sweep(
     tip_positions: ArrayLike, tip_angles: ArrayLike, length: float
 ) -> tuple[FloatArray, FloatArray, float]:
-    pos = _finite("tip_positions", tip_positions, (None, 2))
-    ang = _finite("tip_angles", tip_angles, (None,))
-    length = _positive("length", length)
+    pos = finite_array("tip_positions", tip_positions, (None, 2))
+    ang = finite_array("tip_angles", tip_angles, (None,))
+    length = positive_number("length", length)
     if len(pos) != len(ang):
         raise ValueError(
             f"tip_positions has {len(pos)} poses but tip_angles has {len(ang)}: expected one "
@@ -230,9 +118,12 @@ def _check_sweep(
 def _default_sigmas(
     length: float, position_sigma: float | None, angle_sigma: float | None
 ) -> tuple[float, float]:
-    ps = 0.002 * length if position_sigma is None else _positive("position_sigma", position_sigma)
-    as_ = math.radians(0.5) if angle_sigma is None else _positive("angle_sigma", angle_sigma)
-    return ps, as_
+    if position_sigma is not None:
+        position_sigma = positive_number("position_sigma", position_sigma)
+    if angle_sigma is not None:
+        angle_sigma = positive_number("angle_sigma", angle_sigma)
+    return (0.002 * length if position_sigma is None else position_sigma,
+            math.radians(0.5) if angle_sigma is None else angle_sigma)
 
 
 def _model_tips(
@@ -334,6 +225,99 @@ def fit_thetas(
     return _residuals_of(thetas, pos, ang, length, k, rate)
 
 
+def _sweep_start(pos: FloatArray, ang: FloatArray) -> FloatArray:
+    """Start of the sweep fit: ``(k, rate, theta_1..theta_N)`` with each theta on its chord.
+
+    Raises:
+        ValueError: no pose is bent by at least :data:`MIN_BEND`.
+    """
+    theta0 = _initial_thetas(pos)
+    if np.max(np.abs(theta0)) < MIN_BEND:
+        raise ValueError(
+            "every pose of the sweep is bent less than 1 deg: k and delta_max are not observable; "
+            "record poses across the bending range"
+        )
+    bent = np.abs(theta0) >= MIN_BEND
+    rate0 = float(np.clip(np.median((theta0[bent] - ang[bent]) / theta0[bent]), -0.9, 0.9))
+    return np.concatenate([[0.25, rate0], theta0])
+
+
+def _solve_sweep(
+    pos: FloatArray,
+    ang: FloatArray,
+    length: float,
+    x0: FloatArray,
+    sigmas: tuple[float, float],
+) -> scipy.optimize.OptimizeResult:
+    """Least squares for ``(k, rate, thetas)``, with the sparse Jacobian structure: each pose
+    depends on its own theta and the two globals."""
+    n = len(pos)
+    sp, sa = sigmas
+
+    def residuals(params: FloatArray) -> FloatArray:
+        k, rate, thetas = params[0], params[1], params[2:]
+        px, pz, angle = _model_tips(thetas, length, k, rate)
+        return np.concatenate([(px - pos[:, 0]) / sp, (pz - pos[:, 1]) / sp, (angle - ang) / sa])
+
+    per_pose = scipy.sparse.identity(n, format="csr")
+    sparsity = scipy.sparse.hstack(
+        [np.ones((3 * n, 2)), scipy.sparse.vstack([per_pose] * 3)], format="csr"
+    )
+    lower = np.concatenate([[1e-4, -0.999], np.full(n, -math.pi)])
+    upper = np.concatenate([[0.5 - 1e-4, 0.999], np.full(n, math.pi)])
+    return scipy.optimize.least_squares(
+        residuals,
+        x0,
+        jac="3-point",
+        jac_sparsity=sparsity,
+        bounds=(lower, upper),
+        method="trf",
+        x_scale="jac",
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-12,
+        max_nfev=200,
+    )
+
+
+def _global_covariance(res: scipy.optimize.OptimizeResult, n: int) -> FloatArray:
+    """``(2, 2)`` marginal covariance of ``(k, rate)``: the Schur complement of the per-pose
+    theta blocks of the normal equations, scaled by the residual variance.
+
+    Raises:
+        ValueError: the Schur complement is singular (k and delta_max not observable).
+    """
+    jac = res.jac.tocsr()
+    globals_ = np.asarray(jac[:, :2].todense())  # (3N, 2)
+    rows = np.arange(3 * n)
+    a = np.asarray(jac[rows, 2 + rows % n]).reshape(3, n).T  # d residual / d theta_j, (N, 3)
+    g = globals_.reshape(3, n, 2).transpose(1, 0, 2)  # (N, 3, 2)
+    aa = np.einsum("ni,ni->n", a, a)
+    ag = np.einsum("ni,nij->nj", a, g)
+    schur = np.einsum("nij,nik->jk", g, g) - np.einsum(
+        "nj,nk,n->jk", ag, ag, 1.0 / np.maximum(aa, 1e-300)
+    )
+    dof = max(3 * n - (n + 2), 1)
+    scale = float(np.sum(res.fun**2)) / dof
+    if np.linalg.cond(schur) > 1e12:
+        raise ValueError(
+            "k and delta_max are not observable from this sweep (singular normal equations); "
+            "record poses across the bending range"
+        )
+    return np.linalg.inv(schur) * max(scale, 1e-30)
+
+
+def _sweep_theta_max(thetas: FloatArray, theta_max: float | None) -> float:
+    """The given bending limit, checked, or the largest fitted ``|theta|``."""
+    if theta_max is None:
+        theta_max = float(np.max(np.abs(thetas)))
+    else:
+        theta_max = positive_number("theta_max", theta_max)
+    if theta_max > math.pi:
+        raise ValueError(f"theta_max = {theta_max!r}: expected theta_max <= pi")
+    return theta_max
+
+
 def fit_segment(
     tip_positions: ArrayLike,
     tip_angles: ArrayLike,
@@ -366,74 +350,18 @@ def fit_segment(
             which k and delta_max cannot be told apart (no pose bent more than 1 degree).
     """
     pos, ang, length = _check_sweep(tip_positions, tip_angles, length)
-    n = len(pos)
-    if n < 2:
+    if len(pos) < 2:
         raise ValueError(
-            f"fit_segment needs at least 2 poses, got {n}: with one pose use calibrate_from_tip"
+            f"fit_segment needs at least 2 poses, got {len(pos)}: with one pose use "
+            "calibrate_from_tip"
         )
-    theta0 = _initial_thetas(pos)
-    if np.max(np.abs(theta0)) < MIN_BEND:
-        raise ValueError(
-            "every pose of the sweep is bent less than 1 deg: k and delta_max are not observable; "
-            "record poses across the bending range"
-        )
-    sp, sa = _default_sigmas(length, position_sigma, angle_sigma)
-    bent = np.abs(theta0) >= MIN_BEND
-    rate0 = float(np.clip(np.median((theta0[bent] - ang[bent]) / theta0[bent]), -0.9, 0.9))
-
-    def residuals(params: FloatArray) -> FloatArray:
-        k, rate, thetas = params[0], params[1], params[2:]
-        px, pz, angle = _model_tips(thetas, length, k, rate)
-        return np.concatenate([(px - pos[:, 0]) / sp, (pz - pos[:, 1]) / sp, (angle - ang) / sa])
-
-    per_pose = scipy.sparse.identity(n, format="csr")
-    sparsity = scipy.sparse.hstack(
-        [np.ones((3 * n, 2)), scipy.sparse.vstack([per_pose] * 3)], format="csr"
-    )
-    lower = np.concatenate([[1e-4, -0.999], np.full(n, -math.pi)])
-    upper = np.concatenate([[0.5 - 1e-4, 0.999], np.full(n, math.pi)])
-    x0 = np.concatenate([[0.25, rate0], theta0])
-    res = scipy.optimize.least_squares(
-        residuals,
-        x0,
-        jac="3-point",
-        jac_sparsity=sparsity,
-        bounds=(lower, upper),
-        method="trf",
-        x_scale="jac",
-        xtol=1e-15,
-        ftol=1e-15,
-        gtol=1e-12,
-        max_nfev=200,
-    )
+    x0 = _sweep_start(pos, ang)
+    sigmas = _default_sigmas(length, position_sigma, angle_sigma)
+    res = _solve_sweep(pos, ang, length, x0, sigmas)
     k, rate, thetas = float(res.x[0]), float(res.x[1]), res.x[2:]
-
-    # Marginal covariance of (k, rate): Schur complement of the per-pose theta blocks.
-    jac = res.jac.tocsr()
-    globals_ = np.asarray(jac[:, :2].todense())  # (3N, 2)
-    rows = np.arange(3 * n)
-    a = np.asarray(jac[rows, 2 + rows % n]).reshape(3, n).T  # d residual / d theta_j, (N, 3)
-    g = globals_.reshape(3, n, 2).transpose(1, 0, 2)  # (N, 3, 2)
-    aa = np.einsum("ni,ni->n", a, a)
-    ag = np.einsum("ni,nij->nj", a, g)
-    schur = np.einsum("nij,nik->jk", g, g) - np.einsum(
-        "nj,nk,n->jk", ag, ag, 1.0 / np.maximum(aa, 1e-300)
-    )
-    dof = max(3 * n - (n + 2), 1)
-    scale = float(np.sum(res.fun**2)) / dof
-    if np.linalg.cond(schur) > 1e12:
-        raise ValueError(
-            "k and delta_max are not observable from this sweep (singular normal equations); "
-            "record poses across the bending range"
-        )
-    cov = np.linalg.inv(schur) * max(scale, 1e-30)
-
-    if theta_max is None:
-        theta_max = float(np.max(np.abs(thetas)))
-    else:
-        theta_max = _positive("theta_max", theta_max)
-    if theta_max > math.pi:
-        raise ValueError(f"theta_max = {theta_max!r}: expected theta_max <= pi")
+    cov = _global_covariance(res, len(pos))
+    theta_max = _sweep_theta_max(thetas, theta_max)
+    pcc_thetas = _solve_thetas(pos, ang, length, None, 0.0, sigmas)
     return SweepCalibration(
         k=k,
         delta_max=rate * theta_max,
@@ -442,7 +370,5 @@ def fit_segment(
         k_std=float(np.sqrt(cov[0, 0])),
         delta_max_std=float(np.sqrt(cov[1, 1]) * theta_max),
         apcc=_residuals_of(thetas, pos, ang, length, k, rate),
-        pcc=_residuals_of(
-            _solve_thetas(pos, ang, length, None, 0.0, (sp, sa)), pos, ang, length, None, 0.0
-        ),
+        pcc=_residuals_of(pcc_thetas, pos, ang, length, None, 0.0),
     )

@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from apcc_graph.estimation.chain import chain_estimate
+from apcc_graph.estimation.epipolar_graph import epipolar_solve
 from apcc_graph.estimation.graph import (
     CameraTerms,
     calibration_factors,
@@ -41,6 +42,7 @@ from apcc_graph.estimation.graph import (
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.robust import gnc_start
+from apcc_graph.estimation.smoother import smoother_estimate
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
@@ -126,9 +128,8 @@ def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
     self-calibrating, ``(S, 2)`` of each segment's k and delta_max (NaN where undetermined).
 
     Up to ``dense_limit`` angles, the information matrix of the graph linearised at
-    ``thetas`` is inverted densely (600 frames of three segments: under a second, against 20 s
-    for gtsam's per-variable ``marginalCovariance`` on this banded graph); beyond,
-    ``gtsam.Marginals``.
+    ``thetas`` is inverted densely (far faster than gtsam's per-variable
+    ``marginalCovariance`` on this banded graph); beyond, ``gtsam.Marginals``.
     """
     values, ordering = _values_and_ordering(thetas, frames, calibration)
     n_cal = 0 if calibration is None else calibration.size
@@ -210,15 +211,8 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     robot = sequence.robot
     frames = range(sequence.n_frames)
     terms = build_terms(sequence, options, calibrate)
-    graph = gtsam.NonlinearFactorGraph()
-    for factor in prior_factors(frames, sequence.timestamps, theta0, robot, options):
-        graph.add(factor)
-    if calibrate:
-        for factor in calibration_factors(robot, calibration_sigmas):
-            graph.add(factor)
-    for t in terms:
-        for factor in t.factors():
-            graph.add(factor)
+    graph = _graph(sequence, terms, theta0, options,
+                   calibration_sigmas if calibrate else None)
     thetas = np.array(initial, dtype=float)
     cal = (np.array([[s.k, s.delta_max] for s in robot.segments]) if calibrate else None)
     for t in terms:
@@ -257,8 +251,43 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     return ProjectionSolution(thetas, sigmas, inliers, report, segments, cal_sigmas)
 
 
+def _graph(sequence: Sequence, terms: list[CameraTerms], theta0: FloatArray,
+           options: GraphOptions, calibration_sigmas: tuple[float, float] | None
+           ) -> gtsam.NonlinearFactorGraph:
+    """The projection batch's graph: priors, calibration priors (when ``calibration_sigmas``
+    are given), then every camera's projection factors."""
+    graph = gtsam.NonlinearFactorGraph()
+    frames = range(sequence.n_frames)
+    for factor in prior_factors(frames, sequence.timestamps, theta0, sequence.robot, options):
+        graph.add(factor)
+    if calibration_sigmas is not None:
+        for factor in calibration_factors(sequence.robot, calibration_sigmas):
+            graph.add(factor)
+    for t in terms:
+        for factor in t.factors():
+            graph.add(factor)
+    return graph
+
+
 def _segments(robot: Robot, cal: FloatArray) -> tuple[Segment, ...]:
     return tuple(calibrated(s, k, d) for s, (k, d) in zip(robot.segments, cal, strict=True))
+
+
+def _initial_angles(sequence: Sequence, theta0: FloatArray, initial: ArrayLike | None,
+                    init: str, options: GraphOptions, progress: bool
+                    ) -> tuple[FloatArray, NDArray[np.str_]]:
+    """``(F, S)`` initial angles and the status of each (``initial`` given, or from ``init``:
+    the chain or the fixed-lag smoother)."""
+    if initial is None and init == "smoother":
+        first = smoother_estimate(sequence, theta0=theta0, options=options, uncertainty=False,
+                                  progress=progress)
+        return first.thetas, first.status
+    if initial is None:
+        chain = chain_estimate(sequence, theta0=theta0, threshold_px=options.threshold_px,
+                               progress=progress)
+        return chain.thetas, chain.status
+    status = np.full((sequence.n_frames, sequence.n_segments), "initial", dtype="<U24")
+    return np.asarray(initial, dtype=float), status
 
 
 def batch_estimate(
@@ -286,10 +315,9 @@ def batch_estimate(
         marginals: compute marginal standard deviations (otherwise NaN).
         progress: show progress bars.
         init: where the initial angles come from when ``initial`` is not given:
-            ``"chain"`` (default: the paper's chained 1-point estimate, a few seconds for 600
-            frames; it drifts by degrees, and the graduated non-convexity of the outlier
-            decisions brings the batch back from there) or ``"smoother"`` (the fixed-lag
-            smoother: closer, slower).
+            ``"chain"`` (default: the paper's chained 1-point estimate, fast; it drifts, and
+            the graduated non-convexity of the outlier decisions brings the batch back from
+            there) or ``"smoother"`` (the fixed-lag smoother: closer, slower).
         schedule: the GNC continuation of the outlier decisions (projection model).
         calibrate: self-calibration (projection model): estimate each segment's k and
             delta_max jointly with the angles, with priors of ``calibration_sigmas``
@@ -308,24 +336,10 @@ def batch_estimate(
         raise ValueError(f"init = {init!r}: expected one of {INITS}")
     n_seg = sequence.n_segments
     theta0 = np.zeros(n_seg) if theta0 is None else np.asarray(theta0, dtype=float)
-    if initial is None and init == "smoother":
-        from apcc_graph.estimation.smoother import smoother_estimate
-
-        first = smoother_estimate(sequence, theta0=theta0, options=options, uncertainty=False,
-                                  progress=progress)
-        initial, status = first.thetas, first.status
-    elif initial is None:
-        chain = chain_estimate(sequence, theta0=theta0, threshold_px=options.threshold_px,
-                               progress=progress)
-        initial, status = chain.thetas, chain.status
-    else:
-        initial = np.asarray(initial, dtype=float)
-        status = np.full((sequence.n_frames, n_seg), "initial", dtype="<U24")
+    initial, status = _initial_angles(sequence, theta0, initial, init, options, progress)
     inliers = np.zeros((sequence.n_frames, n_seg), dtype=np.int64)
     robot, cal_sigmas = sequence.robot, None
     if options.vision == "epipolar":
-        from apcc_graph.estimation.epipolar_graph import epipolar_solve
-
         thetas, sigmas = epipolar_solve(sequence, initial, theta0, options,
                                         max_iterations=max_iterations, marginals=marginals)
     else:

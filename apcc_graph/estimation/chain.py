@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike
 from tqdm import tqdm
 
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.frontend.one_point import one_point_ransac
+from apcc_graph.frontend.ransac import one_point_ransac
 from apcc_graph.model.kinematics import apcc_transform
 from apcc_graph.model.sequence import Sequence
 
@@ -58,42 +58,49 @@ def chain_estimate(
     status = np.full((n_frames, n_seg), "initial", dtype="<U24")
     inliers = np.zeros((n_frames, n_seg), dtype=np.int64)
     rng = np.random.default_rng(seed)
-    world_T_base = sequence.world_T_base
-
-    def segment_bases(frame: int) -> np.ndarray:
-        """World pose of every segment's base at a frame, from the angles estimated so far."""
-        pose = np.eye(4) if world_T_base is None else world_T_base[frame]
-        bases = np.empty((n_seg, 4, 4))
-        for i, seg in enumerate(robot.segments):
-            bases[i] = pose
-            pose = pose @ apcc_transform(thetas[frame, i], seg)
-        return bases
-
-    prev_bases = segment_bases(0)
+    base = _base_pose(sequence, 0)
+    prev_bases = np.empty((n_seg, 4, 4))
+    for i, seg in enumerate(robot.segments):
+        prev_bases[i] = base
+        base = base @ apcc_transform(thetas[0, i], seg)
     for f in tqdm(range(1, n_frames), desc="chain", disable=not progress):
-        pose = np.eye(4) if world_T_base is None else world_T_base[f]
-        bases = np.empty((n_seg, 4, 4))
-        for i, seg in enumerate(robot.segments):
-            bases[i] = pose
-            camera = robot.cameras[i]
-            thetas[f, i] = thetas[f - 1, i]
-            if camera is None:
-                status[f, i] = "no-camera"
-            else:
-                corr = sequence.correspondences(i, f - 1, f)
-                base_motion = np.linalg.inv(prev_bases[i]) @ pose
-                theta, info = one_point_ransac(
-                    corr.f_a, corr.f_b, thetas[f - 1, i], seg, camera.tip_T_cam, base_motion,
-                    threshold=threshold_px / camera.fx, confidence=confidence, rng=rng,
-                )
-                status[f, i] = info.status
-                inliers[f, i] = info.n_inliers
-                if info.success:
-                    thetas[f, i] = theta
-            pose = pose @ apcc_transform(thetas[f, i], seg)
-        prev_bases = bases
+        prev_bases = _chain_frame(sequence, f, thetas, status, inliers, prev_bases,
+                                  threshold_px, confidence, rng)
     return Estimate(
         method="chain", robot=robot, timestamps=sequence.timestamps.copy(), thetas=thetas,
         sigmas=np.full((n_frames, n_seg), np.nan), status=status, inliers=inliers,
-        world_T_base=world_T_base,
+        world_T_base=sequence.world_T_base,
     )
+
+
+def _base_pose(sequence: Sequence, frame: int) -> np.ndarray:
+    return np.eye(4) if sequence.world_T_base is None else sequence.world_T_base[frame]
+
+
+def _chain_frame(sequence: Sequence, f: int, thetas: np.ndarray, status: np.ndarray,
+                 inliers: np.ndarray, prev_bases: np.ndarray, threshold_px: float,
+                 confidence: float, rng: np.random.Generator) -> np.ndarray:
+    """Frame f's angles (``thetas[f]``, ``status[f]``, ``inliers[f]`` in place), segment by
+    segment from the base; returns the world pose of every segment's base at frame f."""
+    robot = sequence.robot
+    pose = _base_pose(sequence, f)
+    bases = np.empty((robot.n_segments, 4, 4))
+    for i, seg in enumerate(robot.segments):
+        bases[i] = pose
+        camera = robot.cameras[i]
+        thetas[f, i] = thetas[f - 1, i]
+        if camera is None:
+            status[f, i] = "no-camera"
+        else:
+            corr = sequence.correspondences(i, f - 1, f)
+            base_motion = np.linalg.inv(prev_bases[i]) @ pose
+            theta, info = one_point_ransac(
+                corr.f_a, corr.f_b, thetas[f - 1, i], seg, camera.tip_T_cam, base_motion,
+                threshold=threshold_px / camera.fx, confidence=confidence, rng=rng,
+            )
+            status[f, i] = info.status
+            inliers[f, i] = info.n_inliers
+            if info.success:
+                thetas[f, i] = theta
+        pose = pose @ apcc_transform(thetas[f, i], seg)
+    return bases

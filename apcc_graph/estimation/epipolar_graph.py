@@ -29,9 +29,9 @@ import gtsam
 import numpy as np
 
 from apcc_graph.estimation.options import GraphOptions, loss_scale, reuse_factor
-from apcc_graph.frontend.geometry import SegmentTwoView, epipolar_errors
+from apcc_graph.frontend.geometry import SegmentTwoView, epipolar_errors, slope_gate
 from apcc_graph.model.sequence import Sequence
-from factors.epipolar import SLOPE_OUTLIER, epipolar_frame_factor
+from factors.epipolar import epipolar_frame_factor
 from factors.priors import angle_prior, joint_limit_factor, motion_prior
 
 
@@ -119,11 +119,8 @@ def _gate(sequence: Sequence, initial: np.ndarray, cam: int, a: int, b: int,
     if np.linalg.norm(view.relative_pose(initial[b, cam])[:3, 3]) < min_baseline:
         return np.zeros(len(f_a), dtype=bool)
     e, de = epipolar_errors(f_a, f_b, view, initial[b, cam], derivative=True)
-    # Near the epipole the Sampson error's denominator vanishes and its slope explodes: such a
-    # correspondence carries no parallax information, only ill-conditioning. Leave it out.
-    slope = np.abs(de)
-    sane = slope < SLOPE_OUTLIER * max(float(np.median(slope)), 1e-12)
-    return (np.abs(e) < gate) & sane
+    # Near the epipole the Sampson slope explodes (no parallax information): leave those out.
+    return (np.abs(e) < gate) & slope_gate(de)
 
 
 def _values(thetas: np.ndarray) -> gtsam.Values:

@@ -1,29 +1,33 @@
 """A new frame's initial angles, for a streaming estimator.
 
 Where the window knows few points yet (the first frames of a sequence, or after a blackout), the
-angles are first found from the previous frame by the 1-point front end: per segment from the base
-outward, 1-point RANSAC on the generalized epipolar constraint between the previous and the new
-frame (:func:`apcc_graph.frontend.one_point.one_point_ransac`), with the segment's base motion from the angles
-below it (:func:`one_point_guess`). Then the prediction (constant angular velocity from the two
-previous estimates) is refined against the tracks the window already knows: each live track's point
-(triangulated from its earlier observations) is held fixed and the new frame's S angles are fitted
-to the new observations of those tracks, all cameras together, by robust Gauss-Newton (Cauchy
-weights, then the truncated quadratic): a perspective-n-point problem in joint space. Observations
-are whitened reprojection errors (:mod:`factors.track_points`); Jacobians come from the scalar APCC
-transforms (:func:`apcc_graph.model.kinematics.apcc_transform_scalar`), one frame at a time.
+angles are first found from the previous frame by the 1-point front end: per segment from the
+base outward, 1-point RANSAC on the generalized epipolar constraint between the previous and the
+new frame (:func:`apcc_graph.frontend.ransac.one_point_ransac`) over their correspondences
+(:class:`FramePairs`, :func:`frame_pairs`), with the segment's base motion from the angles below
+it (:func:`one_point_guess`). Then the prediction (constant angular velocity from the two
+previous estimates, :func:`predict`) is refined against the tracks the window already knows:
+each live track's point (triangulated from its earlier observations) is held fixed and the new
+frame's S angles are fitted to the new observations of those tracks, all cameras together, by
+robust Gauss-Newton (Cauchy weights, then the truncated quadratic): a perspective-n-point
+problem in joint space (:func:`refine`). Observations are whitened reprojection errors
+(:mod:`factors.track_points`); Jacobians come from the scalar APCC transforms
+(:func:`apcc_graph.model.scalar_kinematics.apcc_transform_scalar`), one frame at a time.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.frontend.one_point import one_point_ransac
+from apcc_graph.frontend.ransac import one_point_ransac
 from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.kinematics import apcc_transform, apcc_transform_scalar
+from apcc_graph.model.kinematics import apcc_transform
 from apcc_graph.model.robot import Robot
+from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
 
 
 @dataclass(frozen=True)
@@ -187,6 +191,29 @@ class FramePairs:
     f_a: FloatArray  # (n, 3) unit bearings in the previous frame
     f_b: FloatArray  # (n, 3) unit bearings in the new frame
     rows: NDArray[np.int64]  # (n,) their rows among the new frame's observations
+
+
+def frame_pairs(previous: Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]],
+                rows: Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]]
+                ) -> list[FramePairs]:
+    """Each camera's correspondences between the previous frame and the new one, from their
+    observations ``camera -> (track ids, normalised points, whitening)``."""
+    out = []
+    for cam, (ids, xy, _) in rows.items():
+        before = previous.get(cam)
+        if before is None:
+            continue
+        common, now, then = np.intersect1d(ids, before[0], return_indices=True)
+        if len(common) == 0:
+            continue
+        out.append(FramePairs(cam, _unit(before[1][then]), _unit(xy[now]), now))
+    return out
+
+
+def _unit(xy: FloatArray) -> FloatArray:
+    """Unit bearings of normalised image points."""
+    b = np.column_stack([xy, np.ones(len(xy))])
+    return b / np.linalg.norm(b, axis=1, keepdims=True)
 
 
 def _segment_bases(thetas: FloatArray, robot: Robot,

@@ -2,9 +2,9 @@
 
 A fixed-lag smoother that eliminates each track's point inside its factor has to cut a track
 whose first frame leaves the window, and the rest of the track then gets a new point: what the
-old observations said about it is lost to the frames still in the window (on the benchmark scene
-1.4-2.3x on the bound of a 1 s lag, and drift; ``docs/estimation.md``). :class:`Landmarks`
-keeps such tracks instead (at most ``max_per_camera`` per camera at a time):
+old observations said about it is lost to the frames still in the window, which raises the bound
+of a fixed lag and lets the estimate drift (``docs/estimation.md``). :class:`Landmarks` keeps
+such tracks instead (at most ``max_per_camera`` per camera at a time):
 
 - :meth:`Landmarks.promote`: the piece's point, triangulated robustly (which also takes the
   outlier decisions of its observations so far), becomes a ``Point3`` variable with a weak

@@ -35,8 +35,7 @@ class GraphOptions:
             unknown point carries no information; two carry one number).
         max_track_frames: longer tracks are cut into pieces of this many frames, each with a
             point of its own, so that no factor spans more frames than this (its dense block
-            grows with the square of its span). 150 frames cost under 0.5% of the
-            Cramer-Rao bound on the benchmark scene; ``None`` keeps whole tracks.
+            grows with the square of its span); ``None`` keeps whole tracks.
 
     Epipolar model (:mod:`factors.epipolar`):
         gaps: frame gaps between which epipolar factors are built.

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.arrays import FloatArray, rms
 from apcc_graph.model.robot import Robot
 
 
@@ -55,4 +55,4 @@ class Estimate:
 
     def rms(self, truth: FloatArray) -> FloatArray:
         """``(S,)`` RMS error per segment against ground truth (radians)."""
-        return np.sqrt(np.mean(self.errors(truth) ** 2, axis=0))
+        return rms(self.errors(truth))

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.arrays import FloatArray, rms, window_rms
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,5 @@ def compare(thetas: ArrayLike, truth: ArrayLike, window: int = 100) -> AccuracyR
         raise ValueError(f"window = {window}: expected at least 1 frame")
     err = est - ref
     starts = np.arange(0, len(err), window)
-    window_rms = np.array([np.sqrt(np.mean(err[s:s + window] ** 2, axis=0)) for s in starts])
-    return AccuracyReport(rms=np.sqrt(np.mean(err**2, axis=0)), max_abs=np.max(np.abs(err), 0),
-                          window=window, window_starts=starts, window_rms=window_rms)
+    return AccuracyReport(rms=rms(err), max_abs=np.max(np.abs(err), 0), window=window,
+                          window_starts=starts, window_rms=window_rms(err, window))

@@ -25,9 +25,11 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.arrays import FloatArray, rms, window_rms
 from apcc_graph.simulation.simulator import Simulation
-from factors.projection import CameraChain, build_observations, chunk_tracks, reduced_system
+from factors.camera_chain import CameraChain
+from factors.projection import build_observations, chunk_tracks
+from factors.reduced_system import reduced_system
 from factors.track_points import cut_tracks
 
 
@@ -50,13 +52,11 @@ class SequenceBound:
     def rms(self, frames: slice | None = None) -> FloatArray:
         """``(S,)`` RMS of the per-angle bound over ``frames`` (default all), radians: the
         figure to set beside an estimator's RMS error over the same frames."""
-        rows = self.sigmas if frames is None else self.sigmas[frames]
-        return np.sqrt(np.mean(rows**2, axis=0))
+        return rms(self.sigmas if frames is None else self.sigmas[frames])
 
     def window_rms(self, window: int = 100) -> FloatArray:
         """``(W, S)`` :meth:`rms` over consecutive windows of ``window`` frames."""
-        starts = range(0, len(self.sigmas), window)
-        return np.array([self.rms(slice(s, s + window)) for s in starts])
+        return window_rms(self.sigmas, window)
 
 
 def fisher_information(simulation: Simulation, noise_px: float,
@@ -185,7 +185,7 @@ class LagBound:
     def rms(self, first: int = 0, stop: int | None = None) -> FloatArray:
         """``(S,)`` RMS of the bound over the sampled frames in ``first .. stop - 1``."""
         keep = (self.frames >= first) & (self.frames < (stop if stop is not None else 2**62))
-        return np.sqrt(np.mean(self.sigmas[keep] ** 2, axis=0))
+        return rms(self.sigmas[keep])
 
     def window_rms(self, window: int = 100) -> FloatArray:
         """``(W, S)`` :meth:`rms` over consecutive windows of ``window`` frames."""

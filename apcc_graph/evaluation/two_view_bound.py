@@ -1,6 +1,7 @@
-"""Evaluation: accuracy against ground truth and against the physical limit (Cramer-Rao bound).
+"""The Cramér-Rao bound of one segment's angle theta_b from two frames of its tip camera
+(docs/estimation.md, "The paper's two-view experiment"): the yardstick of the 1-point solver.
 
-Cramer-Rao bound on theta_b. To first order each correspondence's epipolar residual
+To first order each correspondence's epipolar residual
 ``r_i = f_a^T E f_b`` is Gaussian with variance ``noise_px^2 (|J_a^T E f_b|^2 + |J_b^T E^T f_a|^2)``
 where ``J`` is the derivative of a unit bearing with respect to its pixel (pinhole; the unknown
 3-D point is eliminated by the epipolar constraint itself). The Fisher information on theta_b is

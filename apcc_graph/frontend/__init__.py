@@ -1,14 +1,21 @@
 """The front end: everything that turns two frames of one tip camera into a segment angle.
 
-Holds two-view geometry: bearings, the generalized epipolar constraint and its Sampson error
-(:mod:`~apcc_graph.frontend.geometry`), the 1-point solver and its RANSAC
-(:mod:`~apcc_graph.frontend.one_point`, docs/estimation.md, "Two frames") and feature tracking
-from images with OpenCV (:mod:`~apcc_graph.frontend.tracking`).
+Modules (docs/estimation.md, "Two frames"):
+
+- :mod:`~apcc_graph.frontend.geometry`: two-view geometry: relative pose, essential matrix,
+  bearings, the Sampson error and its gradient, and the outlier gate on its slope;
+- :mod:`~apcc_graph.frontend.basis`: the epipolar constraint of one segment on nine basis
+  functions of its angle, and Sampson errors of many hypotheses through them;
+- :mod:`~apcc_graph.frontend.roots`: every root of that constraint (the solver's root finding);
+- :mod:`~apcc_graph.frontend.one_point`: the 1-point solver;
+- :mod:`~apcc_graph.frontend.ransac`: 1-point RANSAC and robust refinement of the angle;
+- :mod:`~apcc_graph.frontend.tracking`: feature tracking from images with OpenCV.
 
 May import: :mod:`apcc_graph.model` and :mod:`apcc_graph.io` (tracking reads image folders and
 writes track tables).
 """
 
-from apcc_graph.frontend.one_point import one_point, one_point_ransac
+from apcc_graph.frontend.one_point import one_point
+from apcc_graph.frontend.ransac import one_point_ransac
 
 __all__ = ["one_point", "one_point_ransac"]

@@ -1,4 +1,4 @@
-"""Two-view geometry of a tip camera: relative pose, essential matrix, Sampson error.
+"""Two-view geometry of a tip camera: relative pose, essential matrix, Sampson error, slope gate.
 
 Frames (docs/estimation.md, "Conventions" and "Two frames"). For one segment between frames
 a and b::
@@ -17,6 +17,11 @@ correspondences with the Sampson (first-order geometric) error for unit bearings
 
 which is in **radians on the bearings' tangent planes**: a pixel threshold ``px`` is ``px / focal``.
 At exactly zero motion (E = 0) the constraint holds trivially and ``e`` is defined as 0, never NaN.
+
+This module is the one home of the Sampson error (:func:`sampson_terms`, used by
+:func:`sampson_error`, :func:`sampson_gradient`, the basis expansion of
+:mod:`~apcc_graph.frontend.basis` and the epipolar factor) and of the outlier gate on its slope
+(:func:`slope_gate`).
 """
 
 from __future__ import annotations
@@ -24,13 +29,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.kinematics import apcc_transform, apcc_transform_derivative
 from apcc_graph.model.segment import Segment
 
 _TINY = 1e-300
+SLOPE_OUTLIER = 100.0
+"""A correspondence whose Sampson slope exceeds this multiple of the median slope of its frame
+pair is ill-posed (near the epipole the Sampson error's denominator vanishes)."""
 
 
 def skew(v: ArrayLike) -> FloatArray:
@@ -121,12 +129,36 @@ def _dot(x: FloatArray, y: FloatArray) -> FloatArray:
     return np.einsum("...i,...i->...", x, y)
 
 
+def sampson_terms(num: FloatArray, norms2: FloatArray, floor: float = _TINY,
+                  differential: bool = False
+                  ) -> FloatArray | tuple[FloatArray, FloatArray, FloatArray]:
+    """The Sampson error of unit bearings from its products (any shape, element-wise).
+
+    With ``n = f_a^T E f_b`` (``num``) and ``s = |E f_b|^2 + |E^T f_a|^2`` (``norms2``), the
+    tangent-plane gradient norms of unit bearings simplify to
+    ``|P_a E f_b|^2 + |P_b E^T f_a|^2 = s - 2 n^2 = d^2``, and ``e = n / d``. Differentiating,
+
+        de = a dn - b ds / 2,   a = 1/d + 2 n^2/d^3,   b = n / d^3,
+
+    with ``ds / 2 = E f_b . dE f_b + E^T f_a . dE^T f_a``. Where ``d <= floor`` (no motion) the
+    error and both coefficients are 0, never NaN.
+
+    Returns:
+        ``e``; with ``differential``, ``(e, a, b)``.
+    """
+    den = np.sqrt(np.maximum(norms2 - 2.0 * num * num, 0.0))
+    ok = den > floor
+    inv = np.where(ok, 1.0 / np.where(ok, den, 1.0), 0.0)
+    e = num * inv
+    if not differential:
+        return e
+    b = e * inv * inv
+    return e, inv + 2.0 * num * b, b
+
+
 def sampson_error(f_a: ArrayLike, f_b: ArrayLike, E: ArrayLike,
                   dE: ArrayLike | None = None) -> FloatArray | tuple[FloatArray, FloatArray]:
     """Sampson error of unit bearings for one or many essential matrices (radians).
-
-    For unit ``f_a, f_b`` the tangent-plane gradient norms simplify:
-    ``|P_a E f_b|^2 + |P_b E^T f_a|^2 = |E f_b|^2 + |E^T f_a|^2 - 2 (f_a^T E f_b)^2``.
 
     Args:
         f_a, f_b: ``(N, 3)`` unit bearings in cameras a and b.
@@ -142,21 +174,72 @@ def sampson_error(f_a: ArrayLike, f_b: ArrayLike, E: ArrayLike,
     Efb = f_b @ np.swapaxes(E, -1, -2)  # rows: E f_b
     Etfa = f_a @ E  # rows: E^T f_a
     num = _dot(f_a, Efb)
-    den2 = _dot(Efb, Efb) + _dot(Etfa, Etfa) - 2.0 * num * num
-    den = np.sqrt(np.maximum(den2, 0.0))
-    ok = den > _TINY
-    safe = np.where(ok, den, 1.0)
-    e = np.where(ok, num / safe, 0.0)
+    norms2 = _dot(Efb, Efb) + _dot(Etfa, Etfa)
     if dE is None:
-        return e
+        return sampson_terms(num, norms2)
+    e, a, b = sampson_terms(num, norms2, differential=True)
     dE = np.asarray(dE, dtype=float)
     dEfb = f_b @ np.swapaxes(dE, -1, -2)
     dEtfa = f_a @ dE
-    dnum = _dot(f_a, dEfb)
-    dden = (_dot(Efb, dEfb) + _dot(Etfa, dEtfa)
-            - 2.0 * num * dnum) / safe
-    de = np.where(ok, (dnum * den - num * dden) / (safe * safe), 0.0)
-    return e, de
+    return e, a * _dot(f_a, dEfb) - b * (_dot(Efb, dEfb) + _dot(Etfa, dEtfa))
+
+
+def sampson_gradient(f_a: FloatArray, f_b: FloatArray, E: FloatArray,
+                     floor: float = _TINY) -> tuple[FloatArray, FloatArray]:
+    """Sampson errors ``e`` ``(N,)`` and their gradients ``G = de/dE``, flattened ``(N, 9)``.
+
+    ``E`` is ``(N, 3, 3)``, one essential matrix per correspondence. By :func:`sampson_terms`,
+    ``de/dE = a f_a f_b^T - b (E f_b f_b^T + f_a f_a^T E)``. Zero where the denominator is at
+    most ``floor`` (no motion).
+    """
+    Efb = np.einsum("nij,nj->ni", E, f_b)
+    Etfa = np.einsum("nji,nj->ni", E, f_a)
+    num = np.einsum("ni,ni->n", f_a, Efb)
+    norms2 = np.einsum("ni,ni->n", Efb, Efb) + np.einsum("ni,ni->n", Etfa, Etfa)
+    e, a, b = sampson_terms(num, norms2, floor, differential=True)
+    c = b[:, None, None]
+    G = (f_a[:, :, None] * (f_b[:, None, :] * a[:, None, None] - c * Etfa[:, None, :])
+         - c * Efb[:, :, None] * f_b[:, None, :])
+    return e, G.reshape(len(e), 9)
+
+
+def slope_gate(slopes: ArrayLike) -> NDArray[np.bool_]:
+    """Which correspondences of one frame pair have a sane Sampson slope ``de / d theta``.
+
+    Near the epipole the Sampson error's denominator vanishes and its slope explodes: such a
+    correspondence carries no parallax information, only ill-conditioning. A correspondence is
+    kept when ``|slope| < SLOPE_OUTLIER * median |slope|``, with numpy's median (the mean of
+    the two middle values for an even count: the textbook definition, symmetric in the data)
+    floored at ``1e-12`` so that a pair without motion keeps nothing rather than NaN.
+
+    Args:
+        slopes: ``(N,)`` Sampson slopes (any sign) of one frame pair's correspondences.
+
+    Returns:
+        ``(N,)`` mask, True for the correspondences to keep.
+    """
+    slope = np.abs(np.asarray(slopes, dtype=float))
+    if slope.size == 0:
+        return np.zeros(slope.shape, dtype=bool)
+    return slope < SLOPE_OUTLIER * max(float(np.median(slope)), 1e-12)
+
+
+def checked_bearings(f_a: ArrayLike, f_b: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """``(N, 3)`` float arrays of two sets of bearings (one bearing ``(3,)`` becomes ``(1, 3)``).
+
+    Raises:
+        ValueError: the shapes differ or are not ``(N, 3)``.
+    """
+    f_a = np.asarray(f_a, dtype=float)
+    f_b = np.asarray(f_b, dtype=float)
+    if f_a.ndim == 1 and f_a.shape == (3,):
+        f_a = f_a[None]
+    if f_b.ndim == 1 and f_b.shape == (3,):
+        f_b = f_b[None]
+    if f_a.ndim != 2 or f_a.shape[1] != 3 or f_a.shape != f_b.shape:
+        raise ValueError(f"f_a has shape {f_a.shape} and f_b {f_b.shape}: expected the same "
+                         "(N, 3) unit bearings")
+    return f_a, f_b
 
 
 def epipolar_errors(

@@ -1,4 +1,5 @@
-"""The ``robot.toml`` file (format ``apcc-graph/robot@1``, docs/formats.md).
+"""The ``robot.toml`` file (format ``apcc-graph/robot@1``, docs/formats.md), and the camera table
+it shares with the setup file of calibration photos (:func:`camera_from_table`).
 
 Angles are degrees in the file (keys ending in ``_deg``) and radians in memory. The camera mounting
 ``tip_T_cam`` is a translation in metres and a unit quaternion ``(w, x, y, z)``. Every error names
@@ -68,8 +69,19 @@ def _pose_from(table: TomlTable) -> np.ndarray:
     return pose
 
 
-def _camera_from(table: TomlTable) -> TipCamera:
-    table.check_keys(_CAMERA_KEYS, required=("fx", "fy", "cx", "cy", "width", "height"))
+def camera_from_table(table: TomlTable, mounting: bool = True) -> TipCamera:
+    """A :class:`TipCamera` from its TOML table: ``fx``, ``fy``, ``cx``, ``cy``, ``width``,
+    ``height``, the optional ``distortion`` (OpenCV order) and, with ``mounting``, the optional
+    ``tip_T_cam`` table (default identity). Without ``mounting`` a ``tip_T_cam`` key is unknown.
+
+    The camera table of ``robot.toml`` and of a calibration-images folder's ``calibration.toml``
+    (docs/formats.md).
+
+    Raises:
+        ValueError: a missing, unknown or bad key; the message names the file and the key.
+    """
+    keys = _CAMERA_KEYS if mounting else _CAMERA_KEYS[:-1]
+    table.check_keys(keys, required=("fx", "fy", "cx", "cy", "width", "height"))
     tip_T_cam = _pose_from(table.table("tip_T_cam")) if table.has("tip_T_cam") else np.eye(4)
     values: dict[str, Any] = {name: table.number(name) for name in ("fx", "fy", "cx", "cy")}
     values.update(width=table.integer("width"), height=table.integer("height"))
@@ -78,7 +90,7 @@ def _camera_from(table: TomlTable) -> TipCamera:
         return TipCamera(**values, tip_T_cam=tip_T_cam)
     except ValueError as exc:
         message = str(exc)
-        for name in _CAMERA_KEYS:
+        for name in keys:
             if message.startswith(f"TipCamera.{name}"):
                 raise table.error(name, message) from None
         raise table.error("", message) from None
@@ -92,7 +104,7 @@ def robot_from_toml(data: dict[str, Any], path: str | Path = "<robot.toml>") -> 
     segments, cameras = [], []
     for table in top.tables("segments"):
         segments.append(_segment_from(table))
-        cameras.append(_camera_from(table.table("camera")) if table.has("camera") else None)
+        cameras.append(camera_from_table(table.table("camera")) if table.has("camera") else None)
     return Robot(segments, cameras)
 
 

@@ -17,3 +17,10 @@ def rms(values: ArrayLike, axis: int | None = 0, skip_nan: bool = False) -> Floa
     gave no value for, are left out)."""
     mean = np.nanmean if skip_nan else np.mean
     return np.sqrt(mean(np.square(np.asarray(values, dtype=float)), axis=axis))
+
+
+def window_rms(values: ArrayLike, window: int) -> FloatArray:
+    """``(W, ...)`` :func:`rms` over consecutive blocks of ``window`` rows of ``values`` (the last
+    block may be shorter)."""
+    values = np.asarray(values, dtype=float)
+    return np.array([rms(values[s:s + window]) for s in range(0, len(values), window)])

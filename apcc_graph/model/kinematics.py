@@ -1,35 +1,34 @@
-"""Segment kinematics: PCC (Webster and Jones) and APCC 2L-5R, with exact derivatives.
+"""Segment kinematics, vectorised: the PCC (Webster and Jones) and APCC 2L-5R transforms, their
+derivatives in theta and psi, the body twists and the derivatives in k and delta_max.
 
 Frames (docs/estimation.md, "Conventions"). A segment's base frame has +z along the backbone
-tangent. A planar segment bends in its x-z plane by a rotation about +y; ``theta > 0`` moves the tip
-toward +x. A spatial segment's bending plane is turned by ``psi`` about +z:
+tangent. A planar segment bends in its x-z plane by a rotation about +y; ``theta > 0`` moves the
+tip toward +x. A spatial segment's bending plane is turned by ``psi`` about +z:
 ``T(theta, psi) = Rz(psi) T(theta, 0) Rz(-psi)``. Every transform returned here is ``base_T_tip``
 (it maps points in the tip frame to the base frame), as a homogeneous ``(..., 4, 4)`` array.
 
-APCC 2L-5R (docs/estimation.md, "The robot"), joints from base to tip::
+APCC 2L-5R (docs/estimation.md, "The robot") is a chain of five joints and two links
+(:mod:`~apcc_graph.model.joint_chain` builds it joint by joint, and the tests check that the two
+agree). Multiplied out, it is a closed form that this module evaluates directly: one rotation
+about the axis ``n = Rz(psi) e_y`` by ``beta = theta - delta``, and an in-plane translation to
+the tip, which lies on the PCC chord at ``theta/2`` from the base axis.
 
-    Rz(psi) . Ry(theta - phi) . [link l1 along z] . Ry(phi) . [link l2 along z]
-            . Ry(-delta) . Rz(-psi)
-
-with ``phi = theta/2 + asin(c sin(theta/2))``, ``c = k / (1 - k)``, ``l1 = (1 - k) L``, ``l2 = k L``
-and ``delta = delta_max * theta / theta_max``. Multiplying the chain out gives a closed form that
-this module evaluates directly (one rotation about the axis ``n = Rz(psi) e_y`` by
-``beta = theta - delta``, and an in-plane translation); :func:`apcc_joint_frames` builds the chain
-joint by joint and the tests check that the two agree.
-
-Derivatives come in two forms:
+Derivatives come in three forms:
 
 - :func:`apcc_transform_derivative`: the 4x4 matrix derivatives ``dT/dtheta`` and ``dT/dpsi``;
 - :func:`apcc_body_twists`: body-frame twists ``xi`` in GTSAM's ``Pose3`` tangent order
-  ``(omega, v)`` with GTSAM's right-hand convention, ``T(theta + e) = T(theta) Exp(e xi) + O(e^2)``.
+  ``(omega, v)`` with GTSAM's right-hand convention, ``T(theta + e) = T(theta) Exp(e xi) + O(e^2)``;
+- :func:`apcc_transform_calibration_derivative`: the matrix derivatives ``dT/dk`` and
+  ``dT/ddelta_max``.
 
 Everything broadcasts: ``theta`` and ``psi`` may be arrays of any (broadcast-compatible) shape and
-the result has that shape followed by ``(4, 4)`` or ``(6,)``.
+the result has that shape followed by ``(4, 4)`` or ``(6,)``. The same transform and derivatives
+for one scalar angle, without numpy's per-call overhead, are in
+:mod:`~apcc_graph.model.scalar_kinematics`.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,16 +124,6 @@ def pcc_in_plane(theta: ArrayLike, length: float) -> tuple[FloatArray, FloatArra
     theta = np.asarray(theta, dtype=float)
     half = 0.5 * theta
     return length * np.sin(half) * sinc(half), length * sinc(theta)
-
-
-def apcc_phi(theta: ArrayLike, k: float) -> FloatArray:
-    """The second joint angle ``phi = theta/2 + asin(k/(1-k) sin(theta/2))`` (radians).
-
-    Closed-form solution of paper eq. (2)-(3); defined for every theta when 0 < k < 0.5.
-    """
-    theta = np.asarray(theta, dtype=float)
-    c = k / (1.0 - k)
-    return 0.5 * theta + np.arcsin(c * np.sin(0.5 * theta))
 
 
 @dataclass(frozen=True)
@@ -261,10 +250,12 @@ def apcc_transform_calibration_derivative(
 ) -> tuple[FloatArray, FloatArray]:
     """Matrix derivatives ``(dT/dk, dT/ddelta_max)`` of :func:`apcc_transform`, ``(..., 4, 4)``.
 
-    The vectorised form of :func:`apcc_transform_scalar_calibration` (same maths): ``k`` moves
-    only the tip along the chord direction, ``dchord/dk = L (h - (1 + c s^2) / root)``;
-    ``delta_max`` turns only the tip, ``dbeta/ddelta_max = -theta / theta_max``. ``length``,
-    ``theta_max`` and ``psi`` are held fixed; bottom rows are zero.
+    The vectorised form of
+    :func:`~apcc_graph.model.scalar_kinematics.apcc_transform_scalar_calibration` (same maths):
+    ``k`` moves only the tip along the chord direction,
+    ``dchord/dk = L (h - (1 + c s^2) / root)``; ``delta_max`` turns only the tip,
+    ``dbeta/ddelta_max = -theta / theta_max``. ``length``, ``theta_max`` and ``psi`` are held
+    fixed; bottom rows are zero.
     """
     theta = np.asarray(theta, dtype=float)
     theta, psi_b = np.broadcast_arrays(theta, np.asarray(psi, dtype=float))
@@ -318,163 +309,3 @@ def apcc_body_twists(
     ez_cross_p = np.stack([-p[..., 1], p[..., 0], np.zeros(shape)], axis=-1)
     xi_psi[..., 3:] = np.einsum("...ji,...j->...i", R, ez_cross_p)
     return xi_theta, xi_psi
-
-
-def _rot_y(angle: FloatArray) -> FloatArray:
-    c, s = np.cos(angle), np.sin(angle)
-    out = np.zeros(np.shape(angle) + (4, 4))
-    out[..., 0, 0] = c
-    out[..., 0, 2] = s
-    out[..., 2, 0] = -s
-    out[..., 2, 2] = c
-    out[..., 1, 1] = 1.0
-    out[..., 3, 3] = 1.0
-    return out
-
-
-def _rot_z(angle: FloatArray) -> FloatArray:
-    c, s = np.cos(angle), np.sin(angle)
-    out = np.zeros(np.shape(angle) + (4, 4))
-    out[..., 0, 0] = c
-    out[..., 0, 1] = -s
-    out[..., 1, 0] = s
-    out[..., 1, 1] = c
-    out[..., 2, 2] = 1.0
-    out[..., 3, 3] = 1.0
-    return out
-
-
-def _trans_z(distance: float) -> FloatArray:
-    out = np.eye(4)
-    out[2, 3] = distance
-    return out
-
-
-@dataclass(frozen=True)
-class APCCJointFrames:
-    """Frames of the APCC 2L-5R chain, all expressed in the segment's base frame (``(..., 4, 4)``).
-
-    Attributes:
-        base_T_link1: link 1 frame; origin at the base, link 1 runs ``l1`` along its +z.
-        base_T_link2: link 2 frame; origin at the middle joint, link 2 runs ``l2`` along its +z.
-        base_T_tip: the tip frame, equal to :func:`apcc_transform`.
-    """
-
-    base_T_link1: FloatArray
-    base_T_link2: FloatArray
-    base_T_tip: FloatArray
-
-    @property
-    def points(self) -> FloatArray:
-        """Base, middle joint and tip positions, ``(..., 3, 3)`` (last axis: x, y, z in metres)."""
-        return np.stack(
-            [
-                self.base_T_link1[..., :3, 3],
-                self.base_T_link2[..., :3, 3],
-                self.base_T_tip[..., :3, 3],
-            ],
-            axis=-2,
-        )
-
-
-def apcc_joint_frames(theta: ArrayLike, segment: Segment, psi: ArrayLike = 0.0) -> APCCJointFrames:
-    """Build the five-joint chain joint by joint (for drawing the two links, and as a check).
-
-    Args:
-        theta: bending angle(s) in radians.
-        segment: the segment.
-        psi: bending-plane angle(s) in radians.
-
-    Returns:
-        The link frames and the tip frame, broadcast over ``theta`` and ``psi``.
-    """
-    theta, psi = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(psi, dtype=float))
-    phi = apcc_phi(theta, segment.k)
-    link1 = _rot_z(psi) @ _rot_y(theta - phi)
-    link2 = link1 @ _trans_z(segment.l1) @ _rot_y(phi)
-    tip = link2 @ _trans_z(segment.l2) @ _rot_y(-segment.delta(theta)) @ _rot_z(-psi)
-    return APCCJointFrames(base_T_link1=link1, base_T_link2=link2, base_T_tip=tip)
-
-
-def apcc_transform_scalar(theta: float, segment: Segment,
-                          psi: float = 0.0) -> tuple[FloatArray, FloatArray]:
-    """``apcc_transform`` and its ``d/dtheta`` for one scalar angle, ``(4, 4)`` each.
-
-    Plain ``math`` on scalars: the fast path for factor-graph callbacks that evaluate one
-    configuration at a time (the vectorised functions pay numpy's per-call overhead).
-    """
-    c = segment.link_ratio
-    l1, l2 = segment.l1, segment.l2
-    half = 0.5 * theta
-    s, h = math.sin(half), math.cos(half)
-    root = math.sqrt(1.0 - (c * s) ** 2)
-    chord = l1 * root + l2 * h
-    dchord = -0.5 * s * l2 * (c * h / root + 1.0)
-    rate = 1.0 - segment.deviation_rate
-    px, pz = chord * s, chord * h
-    dpx, dpz = 0.5 * h * chord + s * dchord, -0.5 * s * chord + h * dchord
-    beta = theta * rate
-    cb, sb = math.cos(beta), math.sin(beta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    vb = 1.0 - cb
-    T = np.array([
-        [1.0 - vb * cp * cp, -vb * sp * cp, sb * cp, cp * px],
-        [-vb * sp * cp, 1.0 - vb * sp * sp, sb * sp, sp * px],
-        [-sb * cp, -sb * sp, cb, pz],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
-    r = rate
-    dT = np.array([
-        [-r * sb * cp * cp, -r * sb * sp * cp, r * cb * cp, cp * dpx],
-        [-r * sb * sp * cp, -r * sb * sp * sp, r * cb * sp, sp * dpx],
-        [-r * cb * cp, -r * cb * sp, -r * sb, dpz],
-        [0.0, 0.0, 0.0, 0.0],
-    ])
-    return T, dT
-
-
-def apcc_transform_scalar_calibration(
-    theta: float, segment: Segment, psi: float = 0.0
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """``T``, ``dT/dtheta``, ``dT/dk`` and ``dT/ddelta_max`` for one scalar angle, ``(4, 4)`` each.
-
-    The scalar fast path of :func:`apcc_transform_scalar` extended with the derivatives in the two
-    calibrated parameters; ``T`` and ``dT/dtheta`` are bit-for-bit those of
-    :func:`apcc_transform_scalar`. ``length``, ``theta_max`` and ``psi`` are held fixed.
-
-    Notation as in :func:`apcc_in_plane`: ``s, h = sin(theta/2), cos(theta/2)``,
-    ``c = k / (1 - k)``, ``root = sqrt(1 - c^2 s^2)``, ``chord = l1 root + l2 h`` with
-    ``l1 = (1 - k) L``, ``l2 = k L``; the tip is ``p = chord (cos psi s, sin psi s, h)`` and the
-    rotation is ``R(beta) = Rz(psi) Ry(beta) Rz(-psi)`` with
-    ``beta = theta (1 - delta_max / theta_max)``.
-
-    - ``k`` enters only ``chord`` (through ``l1``, ``l2`` and ``c``), never the rotation. With
-      ``dl1/dk = -L``, ``dl2/dk = L`` and ``dc/dk = 1 / (1 - k)^2``::
-
-          dchord/dk = -L root - l1 c s^2 / ((1 - k)^2 root) + L h
-                    = L (h - (1 + c s^2) / root)
-
-      so ``dT/dk`` has only the translation column ``dchord/dk (cos psi s, sin psi s, h)``. It is
-      exactly zero at ``theta = 0`` (``chord = L`` for every k).
-    - ``delta_max`` enters only ``beta``, with ``dbeta/ddelta_max = -theta / theta_max``, so
-      ``dT/ddelta_max = -(theta / theta_max) dR/dbeta`` (zero translation column), where
-      ``dR/dbeta = cos(beta) [n]x + sin(beta) [n]x^2`` and ``n = (-sin psi, cos psi, 0)``; this is
-      the rotation block of ``dT/dtheta`` with the factor ``1 - delta_max/theta_max`` replaced.
-
-    Bottom rows of the three derivatives are zero.
-    """
-    T, dT = apcc_transform_scalar(theta, segment, psi)
-    c = segment.link_ratio
-    s, h = math.sin(0.5 * theta), math.cos(0.5 * theta)
-    root = math.sqrt(1.0 - (c * s) ** 2)
-    # d/dk: translation only.
-    dchord_k = segment.length * (h - (1.0 + c * s * s) / root)
-    dT_dk = np.zeros((4, 4))
-    dT_dk[0, 3] = math.cos(psi) * s * dchord_k
-    dT_dk[1, 3] = math.sin(psi) * s * dchord_k
-    dT_dk[2, 3] = h * dchord_k
-    # d/ddelta_max: rotation only. dT/dtheta's rotation block is dR/dbeta times
-    # dbeta/dtheta = 1 - delta_max/theta_max (> 0); swap that factor for -theta/theta_max.
-    dT_dd = np.zeros((4, 4))
-    dT_dd[:3, :3] = dT[:3, :3] * (-theta / segment.theta_max / (1.0 - segment.deviation_rate))
-    return T, dT, dT_dk, dT_dd

@@ -154,7 +154,19 @@ class Sequence:
         if not isinstance(robot, Robot):
             raise ValueError(f"Sequence.robot: expected a Robot, got {type(robot).__name__}")
         self.robot = robot
-        ts = np.array(timestamps, dtype=float)
+        self.timestamps: FloatArray = self._timestamps(timestamps)
+        n_frames, n_seg = len(self.timestamps), robot.n_segments
+        self.tracks: dict[int, Tracks] = self._tracks(tracks or {}, robot, n_frames)
+        self.world_T_base: FloatArray | None = self._base_poses(world_T_base, n_frames)
+        self.thetas = self._angles("thetas", thetas, n_frames, n_seg)
+        self.psis = self._angles("psis", psis, n_frames, n_seg)
+        self.images: dict[int, dict[int, Path]] = self._images(images or {}, robot, n_frames)
+        self._offsets: dict[int, IntArray] = {}
+        self._bearings: dict[int, FloatArray] = {}
+
+    @staticmethod
+    def _timestamps(values: ArrayLike) -> FloatArray:
+        ts = np.array(values, dtype=float)
         if ts.ndim != 1 or len(ts) == 0:
             raise ValueError(f"Sequence.timestamps has shape {ts.shape}: expected (F,), F >= 1")
         if not np.all(np.isfinite(ts)):
@@ -166,11 +178,12 @@ class Sequence:
                 f"{ts[f - 1]!r} s; expected strictly increasing timestamps"
             )
         ts.setflags(write=False)
-        self.timestamps: FloatArray = ts
-        n_frames, n_seg = len(ts), robot.n_segments
+        return ts
 
-        self.tracks: dict[int, Tracks] = {}
-        for cam, trk in sorted((tracks or {}).items()):
+    @staticmethod
+    def _tracks(tracks: Mapping[int, Tracks], robot: Robot, n_frames: int) -> dict[int, Tracks]:
+        checked: dict[int, Tracks] = {}
+        for cam, trk in sorted(tracks.items()):
             if cam not in robot.camera_segments:
                 raise ValueError(
                     f"Sequence.tracks[{cam}]: segment {cam} (camera file cam_{cam + 1}) has no "
@@ -185,31 +198,33 @@ class Sequence:
                     f"Sequence.tracks[{cam}]: an observation in frame {trk.frames[-1]} but the "
                     f"sequence has {n_frames} frames (0..{n_frames - 1})"
                 )
-            self.tracks[cam] = trk
+            checked[cam] = trk
+        return checked
 
-        self.world_T_base: FloatArray | None = None
-        if world_T_base is not None:
-            base = np.array(world_T_base, dtype=float)
-            if base.shape != (n_frames, 4, 4):
-                raise ValueError(f"Sequence.world_T_base has shape {base.shape}: expected "
-                                 f"({n_frames}, 4, 4)")
-            for f in range(n_frames):
-                base[f] = validate_pose(f"Sequence.world_T_base[{f}]", base[f])
-            base.setflags(write=False)
-            self.world_T_base = base
-        self.thetas = self._angles("thetas", thetas, n_frames, n_seg)
-        self.psis = self._angles("psis", psis, n_frames, n_seg)
-        self.images: dict[int, dict[int, Path]] = {
-            cam: {int(f): Path(p) for f, p in sorted(files.items())}
-            for cam, files in sorted((images or {}).items())
-        }
-        for cam, files in self.images.items():
+    @staticmethod
+    def _base_poses(values: ArrayLike | None, n_frames: int) -> FloatArray | None:
+        if values is None:
+            return None
+        base = np.array(values, dtype=float)
+        if base.shape != (n_frames, 4, 4):
+            raise ValueError(f"Sequence.world_T_base has shape {base.shape}: expected "
+                             f"({n_frames}, 4, 4)")
+        for f in range(n_frames):
+            base[f] = validate_pose(f"Sequence.world_T_base[{f}]", base[f])
+        base.setflags(write=False)
+        return base
+
+    @staticmethod
+    def _images(images: Mapping[int, Mapping[int, Path]], robot: Robot,
+                n_frames: int) -> dict[int, dict[int, Path]]:
+        files_of = {cam: {int(f): Path(p) for f, p in sorted(files.items())}
+                    for cam, files in sorted(images.items())}
+        for cam, files in files_of.items():
             if cam not in robot.camera_segments:
                 raise ValueError(f"Sequence.images[{cam}]: segment {cam} has no camera")
             if files and (min(files) < 0 or max(files) >= n_frames):
                 raise ValueError(f"Sequence.images[{cam}]: frames must be in 0..{n_frames - 1}")
-        self._offsets: dict[int, IntArray] = {}
-        self._bearings: dict[int, FloatArray] = {}
+        return files_of
 
     @staticmethod
     def _angles(name: str, values: ArrayLike | None, n_frames: int,

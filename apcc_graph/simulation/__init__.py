@@ -3,7 +3,8 @@
 Holds the sequence simulator: motions, scenes, tracks with noise and outliers
 (:mod:`~apcc_graph.simulation.simulator`), the renderer of what each tip camera sees
 (:mod:`~apcc_graph.simulation.render`), rendered calibration photos
-(:mod:`~apcc_graph.simulation.calibration_photos`) and rods that are not APCC, to test the
+(:mod:`~apcc_graph.simulation.calibration_photos`, with the marker drawing in
+:mod:`~apcc_graph.simulation.marker_drawing`) and rods that are not APCC, to test the
 calibration on (:mod:`~apcc_graph.simulation.planar_curves`).
 
 May import: :mod:`apcc_graph.model`, :mod:`apcc_graph.io`, :mod:`apcc_graph.frontend` and

@@ -8,13 +8,15 @@ segment bent to ``theta``, and writes whole folders of such images that
 
 Conventions
 -----------
-- Frames, units and the marker mounting are those of :mod:`apcc_graph.calibration.photos`:
-  metres and radians, the base frame with +z the base axis and bends toward +x positive, the
-  markers flat in the bending plane facing a camera on the base frame's -y side, OpenCV pixel
-  coordinates (pixel centres at integers) and distortion order. A camera pose is ``base_T_cam``
-  (4x4, the camera frame in the base frame, OpenCV camera axes).
+- Frames, units and the marker mounting are those of
+  :mod:`apcc_graph.calibration.marker_geometry`: metres and radians, the base frame with +z the
+  base axis and bends toward +x positive, the markers flat in the bending plane facing a camera
+  on the base frame's -y side, OpenCV pixel coordinates (pixel centres at integers) and
+  distortion order. A camera pose is ``base_T_cam`` (4x4, the camera frame in the base frame,
+  OpenCV camera axes).
 - The tip drawn is the APCC tip (position and tangent from
-  :func:`~apcc_graph.model.kinematics.apcc_in_plane`) of the :class:`~apcc_graph.model.segment.Segment`.
+  :func:`~apcc_graph.model.kinematics.apcc_in_plane`) of the
+  :class:`~apcc_graph.model.segment.Segment`.
 - Images are 8-bit grey, ``camera.height`` x ``camera.width``; noise is in grey levels.
 - Randomness (background blotches and sensor noise) comes only from the
   ``numpy.random.Generator`` passed in; :func:`write_calibration_images` seeds one with
@@ -26,48 +28,54 @@ Rendering
 :func:`render_calibration_image` draws a smooth noisy background, the rod as a thick cubic
 Hermite curve from the base to the APCC tip, a short stalk to the tip marker, both markers
 (``cv2.aruco.generateImageMarker`` with a white quiet zone one cell wide, warped by their plane
-homography), optional lens distortion, and Gaussian sensor noise. The background and the rod are
-drawn at 4x the resolution, the markers at 16x, and averaged down (``INTER_AREA``), so edges are
-the area-integrated ones of a real sensor and the rendered corners lie within ~0.01 px of their
-projection. :func:`side_camera_pose` places a camera parallel to the bending plane (optionally
-tilted) that frames a whole sweep. :func:`write_calibration_images` writes a folder
-(``pose_00.png``, ``pose_01.png``, ... and ``calibration.toml``), each file atomically
+homography; :mod:`~apcc_graph.simulation.marker_drawing`), optional lens distortion, and Gaussian
+sensor noise. The background and the rod are drawn at 4x the resolution, the markers at 16x, and
+averaged down (``INTER_AREA``), so edges are the area-integrated ones of a real sensor.
+:func:`side_camera_pose` places a camera parallel to the bending plane (optionally tilted) that
+frames a whole sweep. :func:`write_calibration_images` writes a folder (``pose_00.png``,
+``pose_01.png``, ... and ``calibration.toml``), each file atomically
 (:mod:`apcc_graph.io.atomic`).
 """
 
 from __future__ import annotations
 
-import functools
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.calibration.photos import (
+from apcc_graph.calibration.image_setup import (
     SETUP_FILE,
     CalibrationImagesSetup,
     MarkerLayout,
+    image_files,
+    setup_to_toml,
+)
+from apcc_graph.calibration.marker_geometry import (
     TipPose,
     base_T_base_marker,
     base_T_tip_marker,
-    image_files,
     marker_corners,
     pose_matrix,
-    setup_to_toml,
 )
 from apcc_graph.io.atomic import atomic_write_bytes, atomic_write_text
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.kinematics import apcc_in_plane
 from apcc_graph.model.segment import Segment
+from apcc_graph.simulation.marker_drawing import distort_image, paste_marker, pixel_scale
 
 DEFAULT_CAMERA = TipCamera(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=640, height=480)
 """The side camera of synthetic folders: 640 x 480 pixels, 600 px focal length, no distortion."""
 
-_INK, _PAPER, _ROD = 30.0, 225.0, 75.0
-"""Grey levels of the markers' black and white, and of the rod."""
+_ROD = 75.0
+"""Grey level of the rod."""
+
+ROD_SUPERSAMPLE = 4
+"""The background and the rod are drawn at 4x the image resolution and averaged down."""
 
 
 def _hermite(tip: TipPose, length: float, n: int = 96) -> FloatArray:
@@ -141,82 +149,70 @@ def side_camera_pose(
     return pose_matrix(rotation, centre - distance * rotation[:, 2])
 
 
-def _marker_texture(markers: MarkerLayout, marker_id: int, cell: int
-                    ) -> tuple[NDArray[np.float32], float]:
-    """The marker image with a one-cell white quiet zone, and its pixels per metre."""
-    cells = markers.aruco_dictionary.markerSize + 2
-    image = cv2.aruco.generateImageMarker(markers.aruco_dictionary, marker_id, cells * cell,
-                                          borderBits=1)
-    image = cv2.copyMakeBorder(image, cell, cell, cell, cell, cv2.BORDER_CONSTANT, value=255)
-    texture = (_INK + (image.astype(np.float32) / 255.0) * (_PAPER - _INK)).astype(np.float32)
-    return texture, cells * cell / markers.side
+
+@dataclass(frozen=True)
+class _View:
+    """The side camera's view of the segment bent to ``theta`` (the bend is named in errors)."""
+
+    camera: TipCamera
+    cam_T_base: FloatArray
+    theta: float
+
+    def pixels(self, points_base: FloatArray) -> FloatArray:
+        """``(N, 2)`` pixels of ``(N, 3)`` base-frame points (pinhole, no distortion).
+
+        Raises:
+            ValueError: a point is behind the camera.
+        """
+        cam = points_base @ self.cam_T_base[:3, :3].T + self.cam_T_base[:3, 3]
+        if np.any(cam[:, 2] <= 0.0):
+            raise ValueError(f"bend {math.degrees(self.theta):.2f} deg: part of the scene is "
+                             "behind the camera")
+        uvw = cam @ self.camera.intrinsic_matrix.T
+        return uvw[:, :2] / uvw[:, 2:3]
 
 
-ROD_SUPERSAMPLE = 4
-"""The background and the rod are drawn at 4x the image resolution and averaged down."""
-
-MARKER_SUPERSAMPLE = 16
-"""Markers are rendered at 16x the image resolution and averaged down: the corners of the
-rendered markers are then within ~0.01 px of their projection (at 4x: up to 0.09 px, which
-biases every image of a sweep the same way through the fixed base marker)."""
-
-
-def _pixel_scale(factor: int) -> FloatArray:
-    """Maps image pixels to a grid ``factor`` times finer (pixel centres at integers)."""
-    offset = 0.5 * (factor - 1)
-    return np.array([[factor, 0.0, offset], [0.0, factor, offset], [0.0, 0.0, 1.0]])
+def _check_in_view(view: _View, mounted: tuple[tuple[str, int, FloatArray], ...],
+                   markers: MarkerLayout) -> None:
+    """Raise ``ValueError`` unless both markers' quiet zones lie wholly inside the image."""
+    width, height = view.camera.width, view.camera.height
+    zone = marker_corners(_quiet_zone(markers))
+    for role, _, base_T_m in mounted:
+        outline = view.pixels(zone @ base_T_m[:3, :3].T + base_T_m[:3, 3])
+        if np.any(outline < 0.0) or np.any(outline > [width - 1, height - 1]):
+            raise ValueError(f"bend {math.degrees(view.theta):.2f} deg: the {role} marker is not "
+                             f"wholly inside the {width}x{height} image; move the camera back")
 
 
-def _paste_marker(canvas: NDArray[np.float32], camera_matrix: FloatArray, cam_T_m: FloatArray,
-                  markers: MarkerLayout, marker_id: int) -> None:
-    """Draw one marker with its quiet zone into ``canvas`` (in place) by its plane homography.
+def _draw_rod(view: _View, tip: TipPose, length: float, stalk_end: FloatArray,
+              diameter: float, rng: np.random.Generator) -> NDArray[np.float32]:
+    """The background and the rod at :data:`ROD_SUPERSAMPLE` x the resolution, averaged down:
+    a smooth grey with a gentle gradient and low-frequency blotches, the rod, the stalk holding
+    the tip marker (to ``stalk_end``, base frame) and a clamp at the base."""
+    camera, cam_T_base = view.camera, view.cam_T_base
+    width, height, ss = camera.width, camera.height, ROD_SUPERSAMPLE
+    blotches = cv2.resize(rng.normal(0.0, 12.0, (6, 8)).astype(np.float32),
+                          (width * ss, height * ss), interpolation=cv2.INTER_CUBIC)
+    ramp = np.linspace(-10.0, 10.0, width * ss, dtype=np.float32)[None, :]
+    canvas = 140.0 + ramp + blotches
+    fine = pixel_scale(ss)[:2, :2]
+    offset = pixel_scale(ss)[:2, 2]
 
-    The marker's neighbourhood is rendered at :data:`MARKER_SUPERSAMPLE` times the resolution
-    (a texture no coarser than that grid, bilinear), averaged down to whole pixels
-    (``INTER_AREA``) and blended with the canvas by the area it covers.
-    """
-    texture, per_metre = _marker_texture(markers, marker_id, cell=32)
-    n = texture.shape[0]
-    centre = 0.5 * (n - 1)
-    # Texture pixel (u, v) -> marker point (x, y, 1): pixel centres at integers, +y up.
-    texture_to_marker = np.array([[1.0 / per_metre, 0.0, -centre / per_metre],
-                                  [0.0, -1.0 / per_metre, centre / per_metre],
-                                  [0.0, 0.0, 1.0]])
-    plane = np.column_stack([cam_T_m[:3, 0], cam_T_m[:3, 1], cam_T_m[:3, 3]])
-    homography = camera_matrix @ plane @ texture_to_marker
-    outline = cv2.perspectiveTransform(
-        np.array([[[-0.5, -0.5]], [[n - 0.5, -0.5]], [[n - 0.5, n - 0.5]], [[-0.5, n - 0.5]]]),
-        homography).reshape(4, 2)
-    x0, y0 = np.maximum(np.floor(outline.min(axis=0)).astype(int) - 1, 0)
-    x1, y1 = np.minimum(np.ceil(outline.max(axis=0)).astype(int) + 2,
-                        [canvas.shape[1], canvas.shape[0]])
-    ss = MARKER_SUPERSAMPLE
-    to_fine = _pixel_scale(ss) @ np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
-    size = (int(x1 - x0), int(y1 - y0))
-    fine = (size[0] * ss, size[1] * ss)
-    paint = np.zeros((size[1], size[0], 2), np.float32)
-    for channel, source in enumerate((texture, np.ones_like(texture))):
-        warped = cv2.warpPerspective(source, to_fine @ homography, fine, flags=cv2.INTER_LINEAR,
-                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        paint[..., channel] = cv2.resize(warped, size, interpolation=cv2.INTER_AREA)
-    roi = canvas[y0:y1, x0:x1]
-    roi[:] = paint[..., 0] + (1.0 - paint[..., 1]) * roi
+    def fixed_point(points_base: FloatArray) -> NDArray[np.int32]:  # 4 fractional bits
+        return np.round((view.pixels(points_base) @ fine.T + offset) * 16.0).astype(np.int32)
 
-
-@functools.lru_cache(maxsize=4)
-def _distortion_maps(camera: TipCamera) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """For every pixel of the distorted image, where it lies in the pinhole image."""
-    v, u = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
-    rays = camera.bearings(np.column_stack([u.ravel(), v.ravel()]))
-    ideal = rays[:, :2] / rays[:, 2:3] * [camera.fx, camera.fy] + [camera.cx, camera.cy]
-    return (ideal[:, 0].reshape(u.shape).astype(np.float32),
-            ideal[:, 1].reshape(u.shape).astype(np.float32))
-
-
-def _distort(image: NDArray[np.float32], camera: TipCamera) -> NDArray[np.float32]:
-    """The pinhole image as the camera with ``camera.distortion`` would record it."""
-    map_x, map_y = _distortion_maps(camera)
-    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    depth = float((cam_T_base[:3, :3] @ [tip.x, 0.0, tip.z] + cam_T_base[:3, 3])[2])
+    thick = max(int(round(diameter * camera.fx * ss / depth)), 1)
+    cv2.polylines(canvas, [fixed_point(_hermite(tip, length))], False, _ROD, thick,
+                  cv2.LINE_AA, shift=4)
+    stalk = fixed_point(np.array([[tip.x, 0.0, tip.z], stalk_end]))
+    cv2.line(canvas, tuple(map(int, stalk[0])), tuple(map(int, stalk[1])), _ROD,
+             max(thick // 2, 1), cv2.LINE_AA, shift=4)
+    d = diameter
+    clamp = np.array([[-1.5 * d, 0.0, -0.2 * d], [1.5 * d, 0.0, -0.2 * d],
+                      [1.5 * d, 0.0, 0.3 * d], [-1.5 * d, 0.0, 0.3 * d]])
+    cv2.fillConvexPoly(canvas, fixed_point(clamp), 0.6 * _ROD, cv2.LINE_AA, shift=4)
+    return cv2.resize(canvas, (width, height), interpolation=cv2.INTER_AREA)
 
 
 def render_calibration_image(
@@ -253,57 +249,16 @@ def render_calibration_image(
     cam_T_base = np.linalg.inv(np.asarray(base_T_cam, dtype=float))
     planar = apcc_in_plane(theta, segment)
     tip = TipPose(float(planar.px), float(planar.pz), float(planar.beta))
-    width, height = camera.width, camera.height
-    intrinsics = camera.intrinsic_matrix
-
-    def to_pixels(points_base: FloatArray) -> FloatArray:
-        cam = points_base @ cam_T_base[:3, :3].T + cam_T_base[:3, 3]
-        if np.any(cam[:, 2] <= 0.0):
-            raise ValueError(f"bend {math.degrees(theta):.2f} deg: part of the scene is behind "
-                             "the camera")
-        uvw = cam @ intrinsics.T
-        return uvw[:, :2] / uvw[:, 2:3]
-
-    zone = marker_corners(_quiet_zone(markers))
+    view = _View(camera, cam_T_base, theta)
     mounted = (("base", markers.base_id, base_T_base_marker(markers.base_offset)),
                ("tip", markers.tip_id, base_T_tip_marker(tip, markers.tip_offset)))
-    for role, _, base_T_m in mounted:
-        outline = to_pixels(zone @ base_T_m[:3, :3].T + base_T_m[:3, 3])
-        if np.any(outline < 0.0) or np.any(outline > [width - 1, height - 1]):
-            raise ValueError(f"bend {math.degrees(theta):.2f} deg: the {role} marker is not "
-                             f"wholly inside the {width}x{height} image; move the camera back")
-
-    # Background and rod at ROD_SUPERSAMPLE x the resolution: a smooth grey with a gentle
-    # gradient and low-frequency blotches, the rod, the stalk holding the tip marker, a clamp.
-    ss = ROD_SUPERSAMPLE
-    blotches = cv2.resize(rng.normal(0.0, 12.0, (6, 8)).astype(np.float32),
-                          (width * ss, height * ss), interpolation=cv2.INTER_CUBIC)
-    ramp = np.linspace(-10.0, 10.0, width * ss, dtype=np.float32)[None, :]
-    canvas = 140.0 + ramp + blotches
-    fine = _pixel_scale(ss)[:2, :2]
-    offset = _pixel_scale(ss)[:2, 2]
-
-    def fixed_point(points_base: FloatArray) -> NDArray[np.int32]:  # 4 fractional bits
-        return np.round((to_pixels(points_base) @ fine.T + offset) * 16.0).astype(np.int32)
-
+    _check_in_view(view, mounted, markers)
     diameter = segment.length / 30.0 if rod_diameter is None else rod_diameter
-    depth = float((cam_T_base[:3, :3] @ [tip.x, 0.0, tip.z] + cam_T_base[:3, 3])[2])
-    thick = max(int(round(diameter * camera.fx * ss / depth)), 1)
-    cv2.polylines(canvas, [fixed_point(_hermite(tip, segment.length))], False, _ROD, thick,
-                  cv2.LINE_AA, shift=4)
-    stalk = fixed_point(np.array([[tip.x, 0.0, tip.z], mounted[1][2][:3, 3]]))
-    cv2.line(canvas, tuple(map(int, stalk[0])), tuple(map(int, stalk[1])), _ROD,
-             max(thick // 2, 1), cv2.LINE_AA, shift=4)
-    d = diameter
-    clamp = np.array([[-1.5 * d, 0.0, -0.2 * d], [1.5 * d, 0.0, -0.2 * d],
-                      [1.5 * d, 0.0, 0.3 * d], [-1.5 * d, 0.0, 0.3 * d]])
-    cv2.fillConvexPoly(canvas, fixed_point(clamp), 0.6 * _ROD, cv2.LINE_AA, shift=4)
-    image = cv2.resize(canvas, (width, height), interpolation=cv2.INTER_AREA)
-
+    image = _draw_rod(view, tip, segment.length, mounted[1][2][:3, 3], diameter, rng)
     for _, marker_id, base_T_m in mounted:
-        _paste_marker(image, intrinsics, cam_T_base @ base_T_m, markers, marker_id)
+        paste_marker(image, camera.intrinsic_matrix, cam_T_base @ base_T_m, markers, marker_id)
     if camera.distortion:
-        image = _distort(image, camera)
+        image = distort_image(image, camera)
     image = image + rng.normal(0.0, noise, image.shape)
     return np.clip(np.round(image), 0, 255).astype(np.uint8)
 
@@ -314,6 +269,39 @@ def encode_png(image: NDArray[np.uint8]) -> bytes:
     if not ok:  # pragma: no cover - OpenCV fails only on unsupported layouts
         raise ValueError("OpenCV could not encode the image as PNG")
     return data.tobytes()
+
+
+def _output_bends(folder: Path, bends: ArrayLike, force: bool) -> FloatArray:
+    """The bends as a 1-D array, checked, and ``folder`` checked to be writable.
+
+    Raises:
+        ValueError: no bends, a non-finite bend, or a non-empty folder without ``force``.
+    """
+    thetas = np.atleast_1d(np.asarray(bends, dtype=float))
+    if thetas.ndim != 1 or len(thetas) == 0 or not np.all(np.isfinite(thetas)):
+        raise ValueError(f"bends = {bends!r}: expected one or more finite angles")
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{folder}: exists and is not a folder")
+    if folder.is_dir() and any(folder.iterdir()) and not force:
+        raise ValueError(f"{folder}: exists and is not empty; choose another folder or use "
+                         "--force (replaces its calibration.toml and *.png)")
+    return thetas
+
+
+def _truth_comment(segment: Segment, thetas: FloatArray, seed: int, noise: float,
+                   tilt: tuple[float, float]) -> str:
+    """The header comment of a synthetic folder's ``calibration.toml``: how it was made."""
+    return (
+        "Synthetic calibration images "
+        "(apcc_graph.simulation.calibration_photos.write_calibration_images).\n"
+        f"True segment: length = {segment.length!r} m, k = {segment.k!r}, "
+        f"delta_max_deg = {math.degrees(segment.delta_max):.6g}, "
+        f"theta_max_deg = {math.degrees(segment.theta_max):.6g}\n"
+        "Bends (deg), one per image: "
+        + ", ".join(f"{math.degrees(t):g}" for t in thetas) + "\n"
+        f"seed = {seed}, noise = {noise:g} grey levels, camera tilt = "
+        f"({math.degrees(tilt[0]):g}, {math.degrees(tilt[1]):g}) deg"
+    )
 
 
 def write_calibration_images(
@@ -356,14 +344,7 @@ def write_calibration_images(
             marker outside the image.
     """
     folder = Path(folder)
-    thetas = np.atleast_1d(np.asarray(bends, dtype=float))
-    if thetas.ndim != 1 or len(thetas) == 0 or not np.all(np.isfinite(thetas)):
-        raise ValueError(f"bends = {bends!r}: expected one or more finite angles")
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"{folder}: exists and is not a folder")
-    if folder.is_dir() and any(folder.iterdir()) and not force:
-        raise ValueError(f"{folder}: exists and is not empty; choose another folder or use "
-                         "--force (replaces its calibration.toml and *.png)")
+    thetas = _output_bends(folder, bends, force)
     markers = markers or MarkerLayout.for_length(segment.length)
     if base_T_cam is None:
         base_T_cam = side_camera_pose(segment, thetas, camera, markers, tilt)
@@ -379,16 +360,7 @@ def write_calibration_images(
         stale.unlink()
     setup = CalibrationImagesSetup(length=segment.length, theta_max=segment.theta_max,
                                    markers=markers, camera=camera)
-    truth = (
-        "Synthetic calibration images (apcc_graph.simulation.calibration_photos.write_calibration_images).\n"
-        f"True segment: length = {segment.length!r} m, k = {segment.k!r}, "
-        f"delta_max_deg = {math.degrees(segment.delta_max):.6g}, "
-        f"theta_max_deg = {math.degrees(segment.theta_max):.6g}\n"
-        "Bends (deg), one per image: "
-        + ", ".join(f"{math.degrees(t):g}" for t in thetas) + "\n"
-        f"seed = {seed}, noise = {noise:g} grey levels, camera tilt = "
-        f"({math.degrees(tilt[0]):g}, {math.degrees(tilt[1]):g}) deg"
-    )
+    truth = _truth_comment(segment, thetas, seed, noise, tilt)
     config = folder / SETUP_FILE
     atomic_write_text(config, setup_to_toml(setup, truth))
     written.append(config)

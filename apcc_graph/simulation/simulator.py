@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from apcc_graph.model.arrays import FloatArray, IntArray
+from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence, Tracks
@@ -121,6 +122,154 @@ def _true_tips(robot: Robot, thetas: FloatArray, psis: FloatArray | None,
     return out
 
 
+def _check_options(
+    robot: Robot,
+    n_frames: int,
+    *,
+    noise_px: float,
+    outlier_fraction: float,
+    blackout_fraction: float,
+    fps: float,
+    motion: str,
+    scene: str,
+    track_lifetime: float | None,
+    depth_range: tuple[float, float],
+    truth_segments: SequenceOf[Segment] | None,
+    decimals: int | None,
+) -> None:
+    """Raise ``ValueError`` naming the first option of :func:`simulate` out of range."""
+    if n_frames < 2:
+        raise ValueError(f"n_frames = {n_frames}: expected at least 2 frames")
+    if not (math.isfinite(noise_px) and noise_px >= 0):
+        raise ValueError(f"noise_px = {noise_px!r}: expected a finite value >= 0 (pixels)")
+    if not 0.0 <= outlier_fraction < 1.0:
+        raise ValueError(f"outlier_fraction = {outlier_fraction!r}: expected 0 <= p < 1")
+    if not 0.0 <= blackout_fraction < 1.0:
+        raise ValueError(f"blackout_fraction = {blackout_fraction!r}: expected 0 <= p < 1")
+    if motion not in MOTIONS:
+        raise ValueError(f"motion = {motion!r}: expected one of {MOTIONS}")
+    if scene not in SCENES:
+        raise ValueError(f"scene = {scene!r}: expected one of {SCENES}")
+    if not fps > 0:
+        raise ValueError(f"fps = {fps!r}: expected > 0")
+    if track_lifetime is not None and not track_lifetime >= 1.0:
+        raise ValueError(f"track_lifetime = {track_lifetime!r}: expected >= 1 frame or None")
+    if not 0.0 < depth_range[0] < depth_range[1]:
+        raise ValueError(f"depth_range = {depth_range!r}: expected 0 < min < max (metres)")
+    if truth_segments is not None and len(truth_segments) != robot.n_segments:
+        raise ValueError(f"truth_segments has {len(truth_segments)} segments, the robot "
+                         f"{robot.n_segments}")
+    if decimals is not None and not 0 <= decimals <= 12:
+        raise ValueError(f"decimals = {decimals!r}: expected 0..12 or None")
+    if not robot.camera_segments:
+        raise ValueError("the robot has no camera: nothing to observe")
+
+
+def _bends(rng: np.random.Generator, robot: Robot, t: FloatArray, motion: str, amplitude: float,
+           max_step_deg: float, paper_range_deg: float) -> FloatArray:
+    """``(F, S)`` true bends of the smooth or the paper motion (see :func:`simulate`)."""
+    limits = np.array([seg.theta_max for seg in robot.segments])
+    if motion == "smooth":
+        return amplitude * limits * _smooth_signal(rng, t, robot.n_segments)
+    bound = np.minimum(math.radians(paper_range_deg), limits)
+    return _paper_walk(rng, len(t), bound, math.radians(max_step_deg))
+
+
+def _base_motion(rng: np.random.Generator, t: FloatArray, rotation_deg: float,
+                 translation: float) -> FloatArray:
+    """``(F, 4, 4)`` base poses: smooth rotations within ``rotation_deg`` about each axis and
+    translations of norm up to ``translation`` metres."""
+    rot = math.radians(rotation_deg) * _smooth_signal(rng, t, 3)
+    trans = _smooth_signal(rng, t, 3)
+    trans *= translation / float(np.max(np.linalg.norm(trans, axis=1)))
+    return np.stack([gtsam.Pose3(gtsam.Rot3.RzRyRx(*r), p).matrix()
+                     for r, p in zip(rot, trans, strict=True)])
+
+
+def _projections(points: FloatArray, camera: TipCamera, world_T_cam: FloatArray,
+                 progress: bool, label: str) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """``(F, P, 2)`` noise-free pixels of every scene point in every frame (``-1`` behind the
+    camera) and ``(F, P)`` whether the point is in view."""
+    n_frames = len(world_T_cam)
+    visible = np.zeros((n_frames, len(points)), dtype=bool)
+    pixels = np.zeros((n_frames, len(points), 2))
+    for f in tqdm(range(n_frames), desc=label, disable=not progress, leave=False):
+        R, p = world_T_cam[f, :3, :3], world_T_cam[f, :3, 3]
+        in_cam = (points - p) @ R
+        front = in_cam[:, 2] > NEAR
+        uv = np.full((len(points), 2), -1.0)
+        uv[front] = camera.project(in_cam[front])
+        visible[f] = front & camera.in_image(uv)
+        pixels[f] = uv
+    return pixels, visible
+
+
+def _tracks_of(rng: np.random.Generator, visible: NDArray[np.bool_], blackout_fraction: float,
+               track_lifetime: float | None) -> tuple[NDArray[np.bool_], IntArray]:
+    """Blackouts and track ids: ``(F, P)`` visibility with the blacked-out frames cleared, and
+    the track id of every (frame, point), meaningful where it is visible."""
+    if blackout_fraction > 0.0:
+        dark = rng.random(len(visible)) < blackout_fraction
+        visible = visible & ~dark[:, None]
+    starts = visible.copy()
+    starts[1:] &= ~visible[:-1]
+    if track_lifetime is not None:
+        starts |= visible & (rng.random(visible.shape) < 1.0 / track_lifetime)
+    # Number the starts landmark by landmark; each observation takes the id of the latest start
+    # of its landmark.
+    ids = (np.cumsum(starts.T.ravel()) - 1).reshape(starts.T.shape).T
+    return visible, ids
+
+
+@dataclass(frozen=True)
+class _CameraTruth:
+    """One camera's tracks and the ground truth of their rows (see :class:`Simulation`)."""
+
+    tracks: Tracks
+    landmarks: IntArray
+    clean_uv: FloatArray
+    outliers: NDArray[np.bool_]
+
+
+def _observe(rng: np.random.Generator, camera: TipCamera, pixels: FloatArray,
+             visible: NDArray[np.bool_], ids: IntArray, noise_px: float, outlier_fraction: float,
+             decimals: int | None) -> _CameraTruth:
+    """The observations of one camera: pixel noise, then outliers, then rounding."""
+    frame_idx, point_idx = np.nonzero(visible)
+    clean_uv = pixels[frame_idx, point_idx]
+    uv = clean_uv + rng.normal(0.0, noise_px, clean_uv.shape) if noise_px else clean_uv.copy()
+    keep = camera.in_image(uv)  # noise may push a point just outside the image
+    frame_idx, point_idx, clean_uv, uv = (a[keep] for a in (frame_idx, point_idx, clean_uv, uv))
+    is_outlier = np.zeros(len(uv), dtype=bool)
+    n_out = int(round(outlier_fraction * len(uv)))
+    if n_out:
+        chosen = rng.choice(len(uv), n_out, replace=False)
+        is_outlier[chosen] = True
+        uv[chosen] = rng.uniform(0.0, 1.0, (n_out, 2)) * [camera.width, camera.height]
+    if decimals is not None:
+        uv = np.round(uv, decimals)
+    track_ids = ids[frame_idx, point_idx]
+    # Tracks sorts rows by (frame, id); put the ground truth in the same order.
+    order = np.lexsort((track_ids, frame_idx))
+    return _CameraTruth(Tracks(frame_idx, track_ids, uv), point_idx[order], clean_uv[order],
+                        is_outlier[order])
+
+
+def _assemble(robot: Robot, t: FloatArray, thetas: FloatArray, psis: FloatArray | None,
+              base: FloatArray | None, *, cameras: dict[int, _CameraTruth],
+              world_T_cam: dict[int, FloatArray], tips: FloatArray, points: FloatArray,
+              centre: FloatArray, room_half_size: tuple[float, float, float]) -> Simulation:
+    """The :class:`Sequence` of the motion and the cameras' tracks, and its ground truth."""
+    tracks = {cam: truth.tracks for cam, truth in cameras.items()}
+    sequence = Sequence(robot, t, tracks, world_T_base=base, thetas=thetas, psis=psis)
+    return Simulation(sequence=sequence, points_world=points,
+                      landmarks={cam: truth.landmarks for cam, truth in cameras.items()},
+                      clean_uv={cam: truth.clean_uv for cam, truth in cameras.items()},
+                      outliers={cam: truth.outliers for cam, truth in cameras.items()},
+                      world_T_cam=world_T_cam, world_T_tip=tips, scene_centre=centre,
+                      room_half_size=np.asarray(room_half_size, dtype=float))
+
+
 def simulate(
     robot: Robot,
     n_frames: int,
@@ -180,7 +329,8 @@ def simulate(
         truth_segments: segments to simulate with instead of the robot's (model mismatch in k,
             delta_max, length).
         curvature_growth: simulate each segment as a rod whose curvature grows along the arc by
-            ``1 + g`` from base to tip (:mod:`apcc_graph.simulation.planar_curves`); 0 for the APCC model.
+            ``1 + g`` from base to tip (:mod:`apcc_graph.simulation.planar_curves`); 0 for the
+            APCC model.
         decimals: round the observed pixels to this many decimals (a tracker's precision; keeps
             saved files small); ``None`` keeps full precision.
         progress: show a progress bar.
@@ -191,108 +341,31 @@ def simulate(
     Raises:
         ValueError: an option out of range (named in the message).
     """
-    if n_frames < 2:
-        raise ValueError(f"n_frames = {n_frames}: expected at least 2 frames")
-    if not (math.isfinite(noise_px) and noise_px >= 0):
-        raise ValueError(f"noise_px = {noise_px!r}: expected a finite value >= 0 (pixels)")
-    if not 0.0 <= outlier_fraction < 1.0:
-        raise ValueError(f"outlier_fraction = {outlier_fraction!r}: expected 0 <= p < 1")
-    if not 0.0 <= blackout_fraction < 1.0:
-        raise ValueError(f"blackout_fraction = {blackout_fraction!r}: expected 0 <= p < 1")
-    if motion not in MOTIONS:
-        raise ValueError(f"motion = {motion!r}: expected one of {MOTIONS}")
-    if scene not in SCENES:
-        raise ValueError(f"scene = {scene!r}: expected one of {SCENES}")
-    if not fps > 0:
-        raise ValueError(f"fps = {fps!r}: expected > 0")
-    if track_lifetime is not None and not track_lifetime >= 1.0:
-        raise ValueError(f"track_lifetime = {track_lifetime!r}: expected >= 1 frame or None")
-    if not 0.0 < depth_range[0] < depth_range[1]:
-        raise ValueError(f"depth_range = {depth_range!r}: expected 0 < min < max (metres)")
-    if truth_segments is not None and len(truth_segments) != robot.n_segments:
-        raise ValueError(f"truth_segments has {len(truth_segments)} segments, the robot "
-                         f"{robot.n_segments}")
-    if decimals is not None and not 0 <= decimals <= 12:
-        raise ValueError(f"decimals = {decimals!r}: expected 0..12 or None")
-    if not robot.camera_segments:
-        raise ValueError("the robot has no camera: nothing to observe")
-
-    rng = np.random.default_rng(seed)
-    n_seg = robot.n_segments
+    _check_options(robot, n_frames, noise_px=noise_px, outlier_fraction=outlier_fraction,
+                   blackout_fraction=blackout_fraction, fps=fps, motion=motion, scene=scene,
+                   track_lifetime=track_lifetime, depth_range=depth_range,
+                   truth_segments=truth_segments, decimals=decimals)
+    rng = np.random.default_rng(seed)  # drawn in this order: motion, scene, then per camera
     t = np.arange(n_frames) / fps
-    limits = np.array([seg.theta_max for seg in robot.segments])
-    if motion == "smooth":
-        thetas = amplitude * limits * _smooth_signal(rng, t, n_seg)
-    else:
-        bound = np.minimum(math.radians(paper_range_deg), limits)
-        thetas = _paper_walk(rng, n_frames, bound, math.radians(max_step_deg))
-    psis = math.pi * _smooth_signal(rng, t, n_seg, (0.02, 0.1)) if spatial else None
-    base = None
-    if moving_base:
-        rot = math.radians(base_rotation_deg) * _smooth_signal(rng, t, 3)
-        trans = _smooth_signal(rng, t, 3)
-        trans *= base_translation / float(np.max(np.linalg.norm(trans, axis=1)))
-        base = np.stack([gtsam.Pose3(gtsam.Rot3.RzRyRx(*r), p).matrix()
-                         for r, p in zip(rot, trans, strict=True)])
-
+    thetas = _bends(rng, robot, t, motion, amplitude, max_step_deg, paper_range_deg)
+    psis = math.pi * _smooth_signal(rng, t, robot.n_segments, (0.02, 0.1)) if spatial else None
+    base = _base_motion(rng, t, base_rotation_deg, base_translation) if moving_base else None
     tips = _true_tips(robot, thetas, psis, base, truth_segments, curvature_growth)
-    total = sum(seg.length for seg in robot.segments)
-    centre = np.array([0.0, 0.0, 0.5 * total])
+    centre = np.array([0.0, 0.0, 0.5 * sum(seg.length for seg in robot.segments)])
     points = _scene(rng, scene, n_points, centre, depth_range, room_half_size)
 
-    tracks, landmarks, clean, outliers, cam_poses = {}, {}, {}, {}, {}
+    cameras, world_T_cam = {}, {}
     for cam in robot.camera_segments:
         camera = robot.cameras[cam]
         assert camera is not None
-        world_T_cam = tips[:, cam] @ camera.tip_T_cam
-        cam_poses[cam] = world_T_cam
-        visible = np.zeros((n_frames, len(points)), dtype=bool)
-        pixels = np.zeros((n_frames, len(points), 2))
-        frames = range(n_frames)
-        for f in tqdm(frames, desc=f"camera {cam + 1}", disable=not progress, leave=False):
-            R, p = world_T_cam[f, :3, :3], world_T_cam[f, :3, 3]
-            in_cam = (points - p) @ R
-            front = in_cam[:, 2] > NEAR
-            uv = np.full((len(points), 2), -1.0)
-            uv[front] = camera.project(in_cam[front])
-            visible[f] = front & camera.in_image(uv)
-            pixels[f] = uv
-        if blackout_fraction > 0.0:
-            visible[rng.random(n_frames) < blackout_fraction] = False
-        starts = visible.copy()
-        starts[1:] &= ~visible[:-1]
-        if track_lifetime is not None:
-            starts |= visible & (rng.random(visible.shape) < 1.0 / track_lifetime)
-        # Track ids: number the starts landmark by landmark; each observation takes the id of the
-        # latest start of its landmark.
-        ids = (np.cumsum(starts.T.ravel()) - 1).reshape(starts.T.shape).T
-        frame_idx, point_idx = np.nonzero(visible)
-        clean_uv = pixels[frame_idx, point_idx]
-        uv = clean_uv + rng.normal(0.0, noise_px, clean_uv.shape) if noise_px else clean_uv.copy()
-        keep = camera.in_image(uv)  # noise may push a point just outside the image
-        frame_idx, point_idx, clean_uv, uv = (a[keep] for a in (frame_idx, point_idx,
-                                                                   clean_uv, uv))
-        is_outlier = np.zeros(len(uv), dtype=bool)
-        n_out = int(round(outlier_fraction * len(uv)))
-        if n_out:
-            chosen = rng.choice(len(uv), n_out, replace=False)
-            is_outlier[chosen] = True
-            uv[chosen] = rng.uniform(0.0, 1.0, (n_out, 2)) * [camera.width, camera.height]
-        if decimals is not None:
-            uv = np.round(uv, decimals)
-        trk = Tracks(frame_idx, ids[frame_idx, point_idx], uv)
-        # Tracks sorts rows by (frame, id); put the ground truth in the same order.
-        order = np.lexsort((ids[frame_idx, point_idx], frame_idx))
-        tracks[cam] = trk
-        landmarks[cam] = point_idx[order]
-        clean[cam] = clean_uv[order]
-        outliers[cam] = is_outlier[order]
-
-    sequence = Sequence(robot, t, tracks, world_T_base=base, thetas=thetas, psis=psis)
-    return Simulation(sequence=sequence, points_world=points, landmarks=landmarks,
-                      clean_uv=clean, outliers=outliers, world_T_cam=cam_poses,
-                      world_T_tip=tips, scene_centre=centre,
-                      room_half_size=np.asarray(room_half_size, dtype=float))
+        world_T_cam[cam] = tips[:, cam] @ camera.tip_T_cam
+        pixels, visible = _projections(points, camera, world_T_cam[cam], progress,
+                                       f"camera {cam + 1}")
+        visible, ids = _tracks_of(rng, visible, blackout_fraction, track_lifetime)
+        cameras[cam] = _observe(rng, camera, pixels, visible, ids, noise_px, outlier_fraction,
+                                decimals)
+    return _assemble(robot, t, thetas, psis, base, cameras=cameras, world_T_cam=world_T_cam,
+                     tips=tips, points=points, centre=centre, room_half_size=room_half_size)
 
 
 def simulate_sequence(robot: Robot, n_frames: int, noise_px: float = 0.5,

@@ -1,0 +1,191 @@
+"""The projection smoother's track factors: live pieces, committed pieces, outlier decisions.
+
+Every observation enters the smoother's graph exactly once. While its track piece is live
+(:mod:`apcc_graph.estimation.live_tracks`) it sits in one "live" projection factor per camera,
+replaced at every update (:meth:`ProjectionTracks.live_factors`); when the piece is committed
+(its track ended, its first frame is about to leave the window, or it is ``max_track_frames``
+long) all its observations enter one projection factor for good (:meth:`ProjectionTracks.commit`).
+
+Outlier decisions: a piece seen for the first time in the live factor, and a piece being
+committed, have their point triangulated robustly at the current estimates and each observation
+is judged against it (truncated quadratic, ``GraphOptions.inlier_sigmas``); the observations of
+a new frame were judged by its initial guess. Each live piece's point, from the last
+linearisation, starts the next frame's initial guess (:meth:`ProjectionTracks.known_rows`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.estimation.graph import camera_chain, values_from
+from apcc_graph.estimation.initial_guess import FrameRows
+from apcc_graph.estimation.landmarks import Landmarks
+from apcc_graph.estimation.live_tracks import LiveTracks
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.robust import gnc_tls_weights
+from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions
+from apcc_graph.estimation.window import Window
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
+from factors.camera_chain import CameraChain
+from factors.projection import ProjectionFactor
+from factors.reduced_system import robust_residual_norms
+from factors.track_points import TrackObservations
+
+Rows = Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]]
+"""camera -> (track ids, normalised points, whitening) of a new frame."""
+LiveFactor = tuple[int, int, ProjectionFactor]
+"""A live factor: its position in the update's graph, its camera, the factor."""
+
+
+class ProjectionTracks:
+    """The track pieces of the projection smoother and their factors.
+
+    Args:
+        robot: the robot.
+        options: graph construction (noise, outlier threshold, track lengths).
+        settings: the smoother's options (``min_live_rows``, ``relinearize``,
+            ``point_iterations``).
+        window: the smoother's window (the estimates the pieces are judged at).
+
+    Attributes:
+        live: the live pieces.
+        bases: frame -> base pose (``None``: identity), for frames inside the window.
+        committed: observations committed so far (each exactly once).
+        outliers: committed observations judged outliers so far.
+    """
+
+    def __init__(self, robot: Robot, options: GraphOptions,
+                 settings: ProjectionSmootherOptions, window: Window) -> None:
+        self.robot = robot
+        self.options = options
+        self.settings = settings
+        self.window = window
+        self.live = self._new_live()
+        self.bases: dict[int, FloatArray | None] = {}
+        self.committed = 0
+        self.outliers = 0
+        self._chains = {c: camera_chain(robot, c) for c in robot.camera_segments}
+
+    def _new_live(self) -> LiveTracks:
+        max_frames = self.options.max_track_frames or 10**9
+        return LiveTracks(self.robot.camera_segments, max_frames, self.options.min_track_rows)
+
+    def reset(self) -> None:
+        """Forget every live piece (after the smoother restarted)."""
+        self.live = self._new_live()
+
+    def chain(self, cam: int, first: int, last: int) -> CameraChain:
+        """Camera ``cam``'s chain with the base poses of frames ``first..last``."""
+        chain = self._chains[cam]
+        bases = [self.bases.get(g) for g in range(first, last + 1)]
+        if all(b is None for b in bases):
+            return chain
+        stack = np.stack([np.eye(4) if b is None else b for b in bases])
+        return CameraChain(chain.segments, chain.tip_T_cam, stack, None, first)
+
+    def span(self, first: int, last: int) -> FloatArray:
+        """``(last - first + 1, S)`` the current estimates of frames ``first..last``."""
+        return np.array([self.window.thetas[g] for g in range(first, last + 1)])
+
+    def count(self, observations: int, outliers: int) -> None:
+        """Count observations committed elsewhere (as landmark observations)."""
+        self.committed += observations
+        self.outliers += outliers
+
+    def commit(self, graph: gtsam.NonlinearFactorGraph, cam: int,
+               obs: TrackObservations) -> None:
+        """One projection factor for camera ``cam``'s committed pieces, with the outlier
+        decisions taken against each piece's robust point at the current estimates."""
+        first, last = int(obs.frames.min()), int(obs.frames.max())
+        factor = ProjectionFactor(obs, self.chain(cam, first, last), self.robot.n_segments)
+        norms = factor.residual_norms(self.span(first, last), robust=True)
+        factor.weights[:] = gnc_tls_weights(norms, self.options.inlier_sigmas, math.inf)
+        self.count(len(obs), int(np.sum(factor.weights == 0.0)))
+        if not factor.weights.any():
+            return
+        if self.settings.relinearize:
+            factor.point_iterations = self.settings.point_iterations
+            graph.add(factor.factor())
+            return
+        # Linearised once, here, at estimates the window has refined for as long as the piece
+        # was live: a C++ factor iSAM2 never calls back into Python for.
+        values = values_from(self.span(first, last), range(first, last + 1))
+        graph.add(gtsam.LinearContainerFactor(factor.factor().linearize(values), values))
+
+    def known_rows(self, rows: Rows, marks: Mapping[int, NDArray[np.int64]],
+                   landmarks: Landmarks
+                   ) -> tuple[list[FrameRows], list[tuple[int, NDArray[np.bool_]]]]:
+        """The new frame's observations of live tracks whose points are known and of
+        landmarks, and per entry the camera and the mask of those rows."""
+        out, masks = [], []
+        for cam, (ids, xy, whiten) in rows.items():
+            found = landmarks.known_rows(cam, marks[cam], xy, whiten)
+            if found is not None:
+                out.append(found[0])
+                masks.append((cam, found[1]))
+            pieces = self.live.piece_ids(cam, ids)
+            points = self.live.points(cam)
+            known = np.array([p in points for p in pieces.tolist()], dtype=bool)
+            if known.any():
+                pts = np.array([points[p] for p in pieces[known].tolist()])
+                out.append(FrameRows(cam, pts, xy[known], whiten[known]))
+                masks.append((cam, known))
+        return out, masks
+
+    def live_factors(self, graph: gtsam.NonlinearFactorGraph) -> list[LiveFactor]:
+        """One projection factor per camera over its live (uncommitted) pieces, added to
+        ``graph``; it replaces the previous update's, so every observation is in exactly one
+        factor at a time. A piece seen for the first time here gets its outlier decisions from
+        a robust triangulation. Returns (position in graph, camera, factor)."""
+        out = []
+        for cam in self.robot.camera_segments:
+            found = self.live.live_rows(cam, self.settings.min_live_rows)
+            if found is None:
+                continue
+            obs, weights, index = found
+            first, last = int(obs.frames.min()), int(obs.frames.max())
+            chain = self.chain(cam, first, last)
+            points = self.live.points(cam)
+            new = np.array([int(p) not in points for p in obs.ids], dtype=bool)
+            if new.any():
+                self._decide(cam, obs, weights, index, new, chain, first, last)
+            if not weights.any():
+                continue
+            factor = ProjectionFactor(obs, chain, self.robot.n_segments, weights)
+            factor.points = np.array([points[int(p)] for p in obs.ids])
+            factor.point_iterations = self.settings.point_iterations
+            out.append((graph.size(), cam, factor))
+            graph.add(factor.factor())
+        return out
+
+    def _decide(self, cam: int, obs: TrackObservations, weights: FloatArray,
+                index: NDArray[np.int64], new: NDArray[np.bool_], chain: CameraChain,
+                first: int, last: int) -> None:
+        """Outlier decisions and points of the pieces ``new`` (a mask over ``obs``' pieces)
+        from a robust triangulation at the current estimates."""
+        points = self.live.points(cam)
+        part = obs.select(np.flatnonzero(new))
+        rows = np.concatenate([np.arange(obs.starts[t], obs.starts[t + 1])
+                               for t in np.flatnonzero(new)])
+        norms, found_points = robust_residual_norms(part, chain, self.span(first, last), first,
+                                                    np.ones(len(part)))
+        decided = gnc_tls_weights(norms, self.options.inlier_sigmas, math.inf)
+        weights[rows] = decided
+        self.live.set_weights(cam, index[rows], decided)
+        for piece, point in zip(part.ids.tolist(), found_points, strict=True):
+            points[piece] = point
+
+    def keep_points(self, live: list[LiveFactor]) -> None:
+        """The live factors' points at their last linearisation start the next frame's
+        initial guess."""
+        for _, cam, factor in live:
+            points = self.live.points(cam)
+            if factor.points is not None:
+                for piece, point in zip(factor.obs.ids.tolist(), factor.points, strict=True):
+                    points[piece] = point

@@ -1,0 +1,277 @@
+"""The window of a fixed-lag smoother, shared by the epipolar and the projection smoother.
+
+- :class:`SmootherFrame`: one frame's estimate as a smoother returns it;
+- :class:`Window`: which frames are inside the window (each with the gtsam timestamp of its
+  variables), their latest estimates and statuses, which of them the next update marginalises,
+  the final estimates of the frames that left, and gtsam's smoother holding the window (replaced
+  when a smoother restarts);
+- :class:`StreamingSmoother`: what both smoothers share on top (frame count, recoveries,
+  :meth:`~StreamingSmoother.pop_final`, their options' fields read as attributes);
+- :func:`new_gtsam_smoother` and :func:`key_stamps`: gtsam's fixed-lag smoother and its map of
+  timestamps per key;
+- :func:`start_angles` and :func:`observed_camera`: the checks of a stream's robot, start and
+  observations; :func:`stream_estimate`: a smoother run over a recorded sequence.
+
+A frame's final estimate (and marginal sigma) is the one of the last update in which it was
+inside the window.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, fields
+from typing import Any, Protocol
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from tqdm import tqdm
+
+from apcc_graph.estimation.result import Estimate
+from apcc_graph.estimation.smoother_options import BACKENDS, SmootherOptions
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import FrameObservations, Sequence
+
+
+@dataclass(frozen=True)
+class SmootherFrame:
+    """One frame's estimate as a smoother returns it.
+
+    Attributes:
+        frame: 0-based frame index (the order of the smoother's ``update`` calls).
+        timestamp: seconds.
+        thetas: ``(S,)`` angles (radians).
+        sigmas: ``(S,)`` marginal standard deviations (radians; NaN without uncertainty).
+        status: ``(S,)`` per segment: ``"ok"`` (measured), ``"no-tracks"``, ``"no-motion"``,
+            ``"no-consensus"``, ``"no-camera"`` (the prior carries it), ``"initial"`` (first
+            frame), ``"recovered"`` (after a gtsam failure); the projection smoother also
+            ``"predicted"`` (no known point seen: the prediction stands).
+        calibration: ``(S, 2)`` current ``k`` and ``delta_max`` (radians) when self-calibrating.
+    """
+
+    frame: int
+    timestamp: float
+    thetas: FloatArray
+    sigmas: FloatArray
+    status: NDArray[np.str_]
+    calibration: FloatArray | None = None
+
+
+def new_gtsam_smoother(lag: float, relinearize_threshold: float, relinearize_skip: int = 1,
+                       backend: str = "incremental") -> gtsam.FixedLagSmoother:
+    """gtsam's fixed-lag smoother over ``lag`` seconds: iSAM2 (``"incremental"``) or
+    Levenberg-Marquardt over the whole window (``"batch"``)."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend = {backend!r}: expected one of {BACKENDS}")
+    if backend == "batch":
+        return gtsam.BatchFixedLagSmoother(lag)
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(relinearize_threshold)
+    params.relinearizeSkip = relinearize_skip
+    params.findUnusedFactorSlots = False
+    return gtsam.IncrementalFixedLagSmoother(lag, params)
+
+
+def key_stamps(stamps: Iterable[tuple[int, float]] = ()) -> gtsam.FixedLagSmootherKeyTimestampMap:
+    """gtsam's map of the timestamp of each new variable (by key), from ``(key, seconds)``."""
+    out = gtsam.FixedLagSmootherKeyTimestampMap()
+    for key, stamp in stamps:
+        out.insert((key, stamp))
+    return out
+
+
+class Window:
+    """The frames inside a fixed-lag smoother's window and the final estimates of those that
+    left it.
+
+    Args:
+        lag: window length (seconds).
+        n_segments: angles per frame.
+        new_smoother: makes gtsam's smoother for the window (again after a restart).
+
+    Attributes:
+        smoother: gtsam's smoother holding the window's variables.
+        stamps: frame -> gtsam timestamp of its variables (seconds), for frames inside.
+        times: frame -> its timestamp (seconds), for frames inside.
+        thetas: frame -> its latest estimate ``(S,)``, for frames inside (and the new one).
+        status: frame -> its status ``(S,)``, for frames inside.
+        final: frame -> final estimate, for frames that left (until :meth:`pop_final`).
+        count: frames received so far.
+        last_time: the timestamp of the last frame received (``None`` before the first).
+        recoveries: gtsam failures caught and recovered from.
+    """
+
+    def __init__(self, lag: float, n_segments: int,
+                 new_smoother: Callable[[], gtsam.FixedLagSmoother]) -> None:
+        self.lag = lag
+        self.n_segments = n_segments
+        self._new_smoother = new_smoother
+        self.smoother = new_smoother()
+        self.stamps: dict[int, float] = {}
+        self.times: dict[int, float] = {}
+        self.thetas: dict[int, FloatArray] = {}
+        self.status: dict[int, NDArray[np.str_]] = {}
+        self.final: dict[int, SmootherFrame] = {}
+        self.count = 0
+        self.last_time: float | None = None
+        self.recoveries = 0
+
+    def renew(self) -> None:
+        """A fresh gtsam smoother (after a failure); the frames' records stay."""
+        self.smoother = self._new_smoother()
+
+    def check_time(self, frame: int, timestamp: float) -> float:
+        """The new frame's timestamp (seconds), which must come after the previous frame's."""
+        t = float(timestamp)
+        last = self.last_time
+        if not math.isfinite(t) or (last is not None and t <= last):
+            shown = float("nan") if last is None else last
+            raise ValueError(f"frame {frame}: timestamp {t!r} s is not after the previous "
+                             f"frame's {shown!r} s")
+        return t
+
+    def leaving(self, stamp: float) -> list[int]:
+        """Frames the next update marginalises: their variables' timestamps are more than the
+        lag older than ``stamp``."""
+        return [g for g, sg in self.stamps.items() if sg < stamp - self.lag]
+
+    def enter(self, frame: int, t: float, stamp: float, status: NDArray[np.str_]) -> None:
+        """Record a frame inside the window."""
+        self.stamps[frame] = stamp
+        self.times[frame] = t
+        self.status[frame] = status
+
+    def leave(self, frame: int, thetas: FloatArray, sigmas: FloatArray) -> None:
+        """A frame leaves the window with its final estimate."""
+        self.stamps.pop(frame)
+        self.final[frame] = SmootherFrame(frame, self.times.pop(frame), thetas, sigmas,
+                                          self.status.pop(frame))
+        self.thetas.pop(frame, None)
+
+    def leave_all_but(self, frame: int, fallback: FloatArray) -> None:
+        """After a restart every frame but ``frame`` leaves with its latest estimate (or
+        ``fallback``) and no sigma: the new gtsam smoother no longer holds them."""
+        for g in [g for g in self.stamps if g != frame]:
+            est = self.thetas.pop(g, fallback)
+            self.stamps.pop(g)
+            self.final[g] = SmootherFrame(g, self.times.pop(g), est.copy(),
+                                          np.full(self.n_segments, np.nan), self.status.pop(g))
+
+    def pop_final(self) -> list[SmootherFrame]:
+        """The frames that left since the last call, in order, and forget them."""
+        out = [self.final[g] for g in sorted(self.final)]
+        self.final.clear()
+        return out
+
+    def frames(self, sigmas: Callable[[int], FloatArray],
+               calibration: Callable[[], FloatArray | None] = lambda: None
+               ) -> list[SmootherFrame]:
+        """Every frame's final estimate in order: frames inside the window with their current
+        estimate, ``sigmas(frame)`` and ``calibration()``."""
+        out = dict(self.final)
+        for g in self.stamps:
+            out[g] = SmootherFrame(g, self.times[g], self.thetas[g].copy(), sigmas(g),
+                                   self.status[g].copy(), calibration())
+        return [out[g] for g in sorted(out)]
+
+
+class Finishing(Protocol):
+    """A streaming estimator (:class:`StreamingSmoother`)."""
+
+    def update(self, observations: FrameObservations) -> SmootherFrame: ...
+
+    def finish(self) -> list[SmootherFrame]: ...
+
+
+class StreamingSmoother:
+    """What both fixed-lag smoothers share: their :class:`Window`, the frame count, and the
+    fields of their options record (``settings``) read as attributes (``smoother.lag``).
+
+    Subclasses set ``settings`` and ``_window`` and define ``update`` and ``finish``.
+    """
+
+    settings: SmootherOptions
+    _window: Window
+
+    def __getattr__(self, name: str) -> Any:
+        settings = self.__dict__.get("settings")
+        if settings is not None and name in {f.name for f in fields(settings)}:
+            return getattr(settings, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @property
+    def _smoother(self) -> gtsam.FixedLagSmoother:
+        """gtsam's smoother holding the window (tests replace it to provoke failures)."""
+        return self._window.smoother
+
+    @_smoother.setter
+    def _smoother(self, smoother: gtsam.FixedLagSmoother) -> None:
+        self._window.smoother = smoother
+
+    @property
+    def n_frames(self) -> int:
+        """Frames received so far."""
+        return self._window.count
+
+    @property
+    def recoveries(self) -> int:
+        """How many times a gtsam failure was caught and recovered from."""
+        return self._window.recoveries
+
+    def pop_final(self) -> list[SmootherFrame]:
+        """The frames that left the window since the last call, in order, and forget them.
+
+        For long or endless streams: memory then stays bounded by the window.
+        """
+        return self._window.pop_final()
+
+    def finish(self) -> list[SmootherFrame]:
+        raise NotImplementedError
+
+    def __iter__(self) -> Iterator[SmootherFrame]:
+        return iter(self.finish())
+
+
+def start_angles(owner: str, robot: Robot, theta0: ArrayLike | None) -> FloatArray:
+    """The stream's starting configuration ``(S,)`` (radians; default straight), after checking
+    that ``robot`` is a :class:`~apcc_graph.model.robot.Robot`."""
+    if not isinstance(robot, Robot):
+        raise ValueError(f"{owner}.robot: expected a Robot, got {type(robot).__name__}")
+    n_seg = robot.n_segments
+    start = np.zeros(n_seg) if theta0 is None else np.asarray(theta0, dtype=float)
+    if start.shape != (n_seg,) or not np.all(np.isfinite(start)):
+        raise ValueError(f"{owner}.theta0 has shape {start.shape}: expected ({n_seg},) finite "
+                         "angles in radians")
+    return start
+
+
+def observed_camera(robot: Robot, frame: int, cam: int) -> TipCamera:
+    """The camera of segment ``cam``, which a frame's observations name."""
+    camera = robot.cameras[cam] if 0 <= cam < robot.n_segments else None
+    if camera is None:
+        raise ValueError(f"frame {frame}: observations of camera {cam}, but segment {cam} "
+                         f"has no camera (cameras ride on {robot.camera_segments})")
+    return camera
+
+
+def stream_estimate(smoother: Finishing, sequence: Sequence, progress: bool = False
+                    ) -> Estimate:
+    """Feed a recorded sequence to ``smoother`` frame by frame; each frame's final estimate.
+
+    Ground-truth columns are never read. The estimate's ``method`` is ``"smoother"`` and its
+    ``inliers`` are 0 (the smoothers weigh each observation instead of counting inliers).
+    """
+    for f in tqdm(range(sequence.n_frames), desc="smoother", disable=not progress):
+        smoother.update(sequence.frame(f))
+    frames = smoother.finish()
+    n_seg = sequence.n_segments
+    return Estimate(
+        method="smoother", robot=sequence.robot, timestamps=sequence.timestamps.copy(),
+        thetas=np.array([fr.thetas for fr in frames]),
+        sigmas=np.array([fr.sigmas for fr in frames]),
+        status=np.array([fr.status for fr in frames], dtype="<U24"),
+        inliers=np.zeros((sequence.n_frames, n_seg), dtype=np.int64),
+        world_T_base=sequence.world_T_base)
