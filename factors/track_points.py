@@ -186,33 +186,3 @@ def project_rows(obs: TrackObservations, Rb: FloatArray, ob: FloatArray,
     m = q[:2] * iz
     r = np.einsum("abn,bn->an", obs.whiten_t, m - obs.xy_t)
     return Projection(d, q, iz, m, r, valid)
-
-
-def project(R: FloatArray, o: FloatArray, points: FloatArray
-            ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Camera-frame points ``q``, projections ``m`` and ``dm/dq`` of world points per row.
-
-    Args:
-        R, o: ``(N, 3, 3)``, ``(N, 3)`` camera orientation and position per row.
-        points: ``(N, 3)`` world points per row.
-
-    Returns:
-        ``q`` ``(N, 3)``, ``m`` ``(N, 2)`` and ``dm/dq`` ``(N, 2, 3)``. Depths below
-        :data:`MIN_DEPTH` are clamped there (the caller marks such rows invalid).
-    """
-    q = np.einsum("nji,nj->ni", R, points - o)
-    iz = 1.0 / np.maximum(q[:, 2], MIN_DEPTH)
-    m = q[:, :2] * iz[:, None]
-    dm = np.zeros((len(q), 2, 3))
-    dm[:, 0, 0] = iz
-    dm[:, 1, 1] = iz
-    dm[:, :, 2] = -m * iz[:, None]
-    return q, m, dm
-
-
-def residual_norms_at(obs: TrackObservations, R: FloatArray, o: FloatArray,
-                      points: FloatArray) -> FloatArray:
-    """``|r_k|`` of every row at the given ``(T, 3)`` points (``inf`` where the point is
-    behind the camera)."""
-    Rb, ob = rows_last(R, o)
-    return project_rows(obs, Rb, ob, np.ascontiguousarray(points.T)[:, obs.tracks]).norms

@@ -16,8 +16,8 @@ import pytest
 
 import apcc_graph
 from apcc_graph.cli import main
-from apcc_graph.model.kinematics import apcc_in_plane
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.kinematics import apcc_in_plane
 from apcc_graph.model.segment import Segment
 
 REPO = Path(__file__).resolve().parents[1]

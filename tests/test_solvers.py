@@ -251,8 +251,9 @@ def test_root_pairs_closer_than_the_grid_step_are_mostly_resolved() -> None:
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "known limitation, documented in solvers.py: when three roots fall within one grid step "
-    "the sign change shows only one of them (5 of 767 deliberately close root pairs here)"))
+    "known limitation, documented in apcc_graph/frontend/roots.py: when three roots fall "
+    "within one grid step the sign change shows only one of them (5 of 767 deliberately "
+    "close root pairs here)"))
 def test_every_root_pair_closer_than_the_grid_step_is_resolved() -> None:
     total, found, missed = resolved_close_pairs(*CLOSE_PAIR_CASES)
     assert total > 600

@@ -1,0 +1,117 @@
+"""What the subcommands of ``apcc-graph`` share: the user-error type, the one-line-error parser,
+number types for options, and the parent parsers of options that mean the same thing in every
+command (``--seed``, ``--seeds``, ``--out``/``--output``, ``--force``).
+
+A subcommand module turns parsed arguments into a call of a library function that returns a
+result object, and formats that result as text. User mistakes (a missing or malformed file, a
+bad value) end in one line on stderr and exit code 1; ``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from typing import NoReturn
+
+import numpy as np
+
+FORMATTER = argparse.RawDescriptionHelpFormatter
+"""Help formatter of every subcommand: keeps the examples' line breaks."""
+
+
+class UserError(Exception):
+    """A mistake in what the user asked for; printed as one line, exit code 1."""
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr and exit code 1."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(1, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _number_type(check: Callable[[float], bool], what: str,
+                 cast: Callable[[str], float] = float) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) and check(value)):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {what}")
+        return value
+
+    return parse
+
+
+positive = _number_type(lambda v: v > 0, "a number > 0")
+non_negative = _number_type(lambda v: v >= 0, "a number >= 0")
+fraction = _number_type(lambda v: 0 <= v < 1, "a fraction 0 <= p < 1")
+
+
+def at_least(minimum: int) -> Callable[[str], float]:
+    """An option type: an integer of at least ``minimum``."""
+    return _number_type(lambda v: v >= minimum, f"an integer >= {minimum}", int)
+
+
+def seed_option(default: int | None = 0, help: str | None = None) -> argparse.ArgumentParser:  # noqa: A002
+    """Parent parser of ``--seed``: the random seed of whatever the command simulates."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("--seed", type=int, default=default,
+                        help=help or f"random seed (default {default})")
+    return parent
+
+
+def seeds_option(default: str) -> argparse.ArgumentParser:
+    """Parent parser of ``--seeds``: comma-separated simulation seeds (read by
+    :func:`int_list`)."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("--seeds", default=default,
+                        help="simulation seeds, comma-separated (default: %(default)s)")
+    return parent
+
+
+def out_option(help: str, required: bool = True,  # noqa: A002
+               metavar: str | None = None) -> argparse.ArgumentParser:
+    """Parent parser of the output path, ``--out`` or its synonym ``--output`` (``args.out``)."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("--out", "--output", dest="out", required=required, metavar=metavar,
+                        help=help)
+    return parent
+
+
+def force_option(help: str) -> argparse.ArgumentParser:  # noqa: A002
+    """Parent parser of ``--force``: write where something already is."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("--force", action="store_true", help=help)
+    return parent
+
+
+def deg(radians: float) -> str:
+    """An angle for a table: degrees with three decimals, ``-`` for NaN."""
+    return "-" if math.isnan(radians) else f"{math.degrees(radians):.3f} deg"
+
+
+def int_list(text: str, option: str) -> list[int]:
+    """Comma-separated integers of ``option`` (e.g. ``--seeds 1,2,3``)."""
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        values = []
+    if not values:
+        raise UserError(f"{option} {text!r}: expected comma-separated integers, e.g. 1,2,3")
+    return values
+
+
+def truth_for(estimate: str, thetas: np.ndarray, truth: str) -> np.ndarray:
+    """The ground-truth angles of sequence folder ``truth``, checked against an estimate's."""
+    from apcc_graph.io import load_sequence
+
+    seq = load_sequence(truth)
+    if seq.thetas is None:
+        raise UserError(f"{truth}: frames.csv has no ground-truth theta columns")
+    if seq.thetas.shape != thetas.shape:
+        raise UserError(f"{estimate}: {thetas.shape[0]} frames x {thetas.shape[1]} segments, "
+                        f"but {truth} has {seq.thetas.shape[0]} x {seq.thetas.shape[1]}")
+    return seq.thetas

@@ -1,0 +1,129 @@
+"""``apcc-graph estimate``: every frame's segment angles of a sequence folder, written as
+``theta.csv`` and one TUM trajectory per segment tip (docs/formats.md, "Estimates")."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from apcc_graph.cli.common import FORMATTER, UserError, out_option
+
+EXAMPLE = ("example:\n  apcc-graph estimate data/sequences/planar_three --method batch "
+           "--out /tmp/est --theta0-deg 20.5,-15.2,21.3")
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    """Add ``estimate`` to the subcommands."""
+    est = commands.add_parser(
+        "estimate", help="estimate every frame's segment angles of a sequence folder",
+        description="Estimate the bending angles of a sequence and write theta.csv and one "
+        "TUM trajectory per segment tip (tips_seg_<i>.tum) into --out.",
+        epilog=EXAMPLE, formatter_class=FORMATTER, parents=[out_option("output folder")],
+    )
+    est.add_argument("sequence", help="sequence folder")
+    est.add_argument("--method", choices=("chain", "batch", "smoother"), default="batch",
+                     help="chain: the paper's frame-by-frame method; batch: the whole sequence "
+                     "in one factor graph; smoother: fixed-lag smoother, frame by frame "
+                     "(default: %(default)s)")
+    est.add_argument("--lag", type=float, default=DEFAULT_LAG,
+                     help="smoother window in seconds (default: %(default)s)")
+    est.add_argument("--theta0-deg", default=None,
+                     help="starting configuration, degrees, one per segment (default straight);"
+                     " write --theta0-deg=-10,5,3 when the first angle is negative")
+    est.add_argument("--theta0-sigma-deg", type=float, default=0.1,
+                     help="how well the starting configuration is known: standard deviation "
+                     "of its prior, degrees (default: %(default)s)")
+    est.add_argument("--noise-px", type=float, default=1.0,
+                     help="pixel noise of the tracks, standard deviation per coordinate "
+                     "(default: %(default)s); sets the outlier threshold and the sigmas")
+    est.add_argument("--vision", choices=("projection", "epipolar"), default=None,
+                     help="vision model: projection (default: every observation once, each "
+                     "track's point eliminated) or epipolar (frame pairs, for comparison)")
+    est.add_argument("--calibrate", action="store_true",
+                     help="self-calibration: estimate each segment's k and delta_max with the "
+                     "angles (batch; or smoother with --vision epipolar); the batch writes "
+                     "robot_calibrated.toml")
+    est.set_defaults(run=run)
+
+
+def _theta0(text: str | None, n_segments: int) -> np.ndarray | None:
+    """``--theta0-deg``: one angle per segment, radians; ``None`` when not given."""
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise UserError(f"--theta0-deg {text!r}: expected comma-separated degrees") from None
+    if len(values) != n_segments or not all(math.isfinite(v) for v in values):
+        raise UserError(f"--theta0-deg {text!r}: expected {n_segments} finite angles in degrees "
+                        "(one per segment)")
+    return np.radians(values)
+
+
+DEFAULT_LAG = 1.0
+
+
+def _options(args: argparse.Namespace) -> dict:
+    """The estimator's keyword arguments from the command line, checked."""
+    options: dict = {"progress": True}
+    if args.method == "smoother":
+        if not (args.lag > 0.0 and math.isfinite(args.lag)):
+            raise UserError(f"--lag {args.lag!r}: expected a positive number of seconds")
+        options["lag"] = args.lag
+    elif args.lag is not None and args.lag != DEFAULT_LAG:
+        raise UserError("--lag applies to --method smoother only")
+    if args.method != "chain":
+        if not (math.isfinite(args.theta0_sigma_deg) and args.theta0_sigma_deg > 0.0):
+            raise UserError(f"--theta0-sigma-deg {args.theta0_sigma_deg!r}: expected a "
+                            "positive number of degrees")
+        if not (math.isfinite(args.noise_px) and args.noise_px > 0.0):
+            raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of "
+                            "pixels")
+        options["theta0_sigma"] = math.radians(args.theta0_sigma_deg)
+        options["vision"] = args.vision
+        options["threshold_px"] = args.noise_px
+    elif args.vision is not None:
+        raise UserError("--vision applies to --method batch and smoother only")
+    if args.calibrate:
+        if args.method == "chain" or (args.method == "smoother" and args.vision != "epipolar"):
+            raise UserError("--calibrate: self-calibration runs in --method batch, or in "
+                            "--method smoother --vision epipolar")
+        options["calibrate"] = True
+    return options
+
+
+def run(args: argparse.Namespace) -> str:
+    """Estimate, write the estimate (and the calibrated robot) and return the summary."""
+    from apcc_graph.estimation.methods import estimate
+    from apcc_graph.io import load_sequence
+    from apcc_graph.io.estimates import save_estimate
+
+    sequence = load_sequence(args.sequence)
+    theta0 = _theta0(args.theta0_deg, sequence.n_segments)
+    options = _options(args)
+    try:
+        result = estimate(sequence, method=args.method, theta0=theta0, **options)
+    except ValueError as error:
+        raise UserError(str(error)) from None
+    written = save_estimate(result, args.out)
+    if args.calibrate and args.method == "batch":
+        from apcc_graph.io.robot_file import save_robot
+
+        robot_path = Path(args.out) / "robot_calibrated.toml"
+        save_robot(result.robot, robot_path)
+        written = [*written, robot_path]
+    lines = [f"{args.method}: {result.n_frames} frames, {sequence.n_segments} segments -> "
+             f"{args.out} ({', '.join(p.name for p in written)})"]
+    if args.calibrate and result.calibration_sigmas is not None:
+        for i, (seg, sig) in enumerate(zip(result.robot.segments, result.calibration_sigmas,
+                                           strict=True)):
+            lines.append(f"segment {i + 1}: k = {seg.k:.4f} +/- {sig[0]:.4f}, delta_max = "
+                         f"{math.degrees(seg.delta_max):.3f} +/- {math.degrees(sig[1]):.3f} deg")
+    if sequence.thetas is not None:  # evaluation only: the estimator never read these
+        rms = np.degrees(result.rms(sequence.thetas))
+        lines.append("RMS error vs the sequence's ground truth: "
+                     + ", ".join(f"segment {i + 1} {v:.3f} deg" for i, v in enumerate(rms)))
+    return "\n".join(lines)
