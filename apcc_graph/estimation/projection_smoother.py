@@ -116,6 +116,7 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
                                     o.threshold_px, o.inlier_sigmas, s.lag, s.max_landmarks,
                                     s.landmark_sigma, s.pose_sigma)
         self._previous_rows: Rows = {}
+        self._previous_base: FloatArray | None = None
         self._rng = np.random.default_rng(0)
         self._live_indices: list[int] = []
 
@@ -156,7 +157,7 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         window.thetas[f] = thetas
         self._tracks.bases[f] = base
         self._observe(add, f, t, rows, marks, weights)
-        self._previous_rows = rows
+        self._previous_rows, self._previous_base = rows, base
         self._add_frame(add.graph, f, 0.0 if previous is None else t - previous, thetas)
         live = self._tracks.live_factors(add.graph)
         self._solve(add.graph, f, t, thetas, live, add.values, add.stamps)
@@ -210,15 +211,16 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         S = self.robot.n_segments
         if f == 0:
             return self.theta0.copy(), np.full(S, "initial", dtype="<U24")
-        thetas = self._window.thetas
+        window = self._window
         known, masks = self._tracks.known_rows(rows, marks, self._landmarks)
-        prediction = predict(thetas[f - 1], thetas.get(f - 2), self.robot)
+        previous = window.latest(f - 1)
+        prediction = predict(previous, window.latest(f - 2), self.robot)
         counts: dict[int, int] = {}
         for cam, mask in masks:
             counts[cam] = counts.get(cam, 0) + int(mask.sum())
         if any(counts.get(cam, 0) < self.settings.front_end_rows for cam in rows):
             prediction, _ = one_point_guess(
-                thetas[f - 1], prediction, self.robot, self._tracks.bases.get(f - 1), base,
+                previous, prediction, self.robot, self._previous_base, base,
                 frame_pairs(self._previous_rows, rows), self.options.threshold_px, self._rng)
         guess = refine(prediction, self.robot, base, known, self.options.inlier_sigmas)
         for (cam, mask), flags in zip(masks, guess.row_inliers, strict=True):
@@ -252,9 +254,11 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
             graph.add(gtsam.PriorFactorVector(
                 key, self.theta0, gtsam.noiseModel.Isotropic.Sigma(S, o.theta0_sigma)))
         elif o.motion_sigma is not None:
-            graph.add(gtsam.BetweenFactorVector(
-                frame_key(f - 1), key, np.zeros(S),
-                gtsam.noiseModel.Isotropic.Sigma(S, o.motion_sigma * math.sqrt(max(dt, 1e-9)))))
+            motion = gtsam.noiseModel.Isotropic.Sigma(S, o.motion_sigma * math.sqrt(max(dt, 1e-9)))
+            if self._window.inside(f - 1):
+                graph.add(gtsam.BetweenFactorVector(frame_key(f - 1), key, np.zeros(S), motion))
+            else:  # a pause longer than the lag: the previous frame has left the window
+                graph.add(gtsam.PriorFactorVector(key, self._window.latest(f - 1), motion))
         if f > 0 and o.motion_sigma is None:
             graph.add(gtsam.PriorFactorVector(
                 key, thetas, gtsam.noiseModel.Isotropic.Sigma(S, self.settings.loose_sigma)))

@@ -33,6 +33,7 @@ window (:mod:`apcc_graph.estimation.epipolar_window`). Failure modes handled (ea
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -109,6 +110,7 @@ class FixedLagSmoother(StreamingSmoother):
         self._front = EpipolarFrontEnd(robot, self.options, s, self._window, self._calibration)
         self._linear = FirstEstimateFactors(s, self._front, self._window)
         self._block_stamp = 0.0
+        self._renewed: list[int] = []
         self._anchor_unconstrained = True  # tests turn this off to provoke gtsam's failure
 
     @property
@@ -132,13 +134,14 @@ class FixedLagSmoother(StreamingSmoother):
         if f % self.settings.marginalise_every == 0:
             self._block_stamp = t
         stamp = frame.stamp = self._block_stamp  # gtsam's timestamp of this frame's variables
+        self._renewed = self._keep_previous(f, stamp)
         # Frames leaving in this update keep their current estimate.
         self._linear.forget(set(window.retire(stamp)))
         status = np.full(self.robot.n_segments, "initial" if f == 0 else "ok", dtype="<U24")
         graph = gtsam.NonlinearFactorGraph()
         thetas, measured = self.theta0.copy(), []
         if f > 0:
-            thetas = predict(window.thetas[f - 1], window.thetas.get(f - 2), self.robot)
+            thetas = predict(window.latest(f - 1), window.latest(f - 2), self.robot)
             measured = self._front.measure(frame, thetas, status)
             self._linear.add(graph, measured, frame, thetas)
         self._front.set_positions(frame, thetas)
@@ -168,6 +171,8 @@ class FixedLagSmoother(StreamingSmoother):
         values = gtsam.Values()
         stamps: list[tuple[int, float]] = []
         keys = [angle_key(f, i, n_seg) for i in range(n_seg)]
+        for g in self._renewed:  # the previous frame stays across a long pause
+            stamps += [(angle_key(g, i, n_seg), stamp) for i in range(n_seg)]
         for kf in self._front.keyframes:  # keyframes stay: renew their timestamps
             kf.stamp = self._window.stamps[kf.index] = stamp
             stamps += [(angle_key(kf.index, i, n_seg), stamp) for i in range(n_seg)]
@@ -184,13 +189,40 @@ class FixedLagSmoother(StreamingSmoother):
             if s.calibrate:
                 self._calibration.add(graph, values)
         elif o.motion_sigma is not None:
-            for i, key in enumerate(keys):
-                graph.add(motion_prior(angle_key(f - 1, i, n_seg), key, o.motion_sigma, dt))
+            self._add_motion(graph, f, keys, dt)
         stamps += self._calibration.stamps(stamp)  # never marginalised
         if f > 0 and o.motion_sigma is None and unconstrained and self._anchor_unconstrained:
             for i, key in enumerate(keys):
                 graph.add(angle_prior(key, thetas[i], s.loose_sigma))
         return values, key_stamps(stamps)
+
+    def _keep_previous(self, f: int, stamp: float) -> list[int]:
+        """After a pause longer than the lag (or with a lag shorter than a marginalisation
+        block) the previous frame would leave the window just before the new one arrives: it
+        stays instead (its timestamp renewed to ``stamp``), so that the new frame is measured
+        against it and tied to it by the motion prior. Returns the frames renewed."""
+        window = self._window
+        if f == 0 or not window.inside(f - 1) or window.stamps[f - 1] >= stamp - window.lag:
+            return []
+        window.stamps[f - 1] = stamp
+        for old in self._front.history:
+            if old.index == f - 1:
+                old.stamp = stamp
+        return [f - 1]
+
+    def _add_motion(self, graph: gtsam.NonlinearFactorGraph, f: int, keys: list[int],
+                    dt: float) -> None:
+        """The random-walk prior from the previous frame, ``dt`` seconds earlier; a prior at its
+        last estimate when it has already left the window (a pause longer than the lag)."""
+        o, n_seg = self.options, self.robot.n_segments
+        if self._window.inside(f - 1):
+            for i, key in enumerate(keys):
+                graph.add(motion_prior(angle_key(f - 1, i, n_seg), key, o.motion_sigma, dt))
+            return
+        previous = self._window.latest(f - 1)
+        sigma = o.motion_sigma * math.sqrt(max(dt, 1e-9))
+        for i, key in enumerate(keys):
+            graph.add(angle_prior(key, previous[i], sigma))
 
     def _iterate(self, frame: StoredFrame, fresh: list[Fresh], point: FloatArray,
                  status: NDArray[np.str_]) -> None:

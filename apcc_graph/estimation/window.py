@@ -99,6 +99,9 @@ class Window:
         thetas: frame -> its latest estimate ``(S,)``, for frames inside (and the new one).
         status: frame -> its status ``(S,)``, for frames inside.
         final: frame -> final estimate, for frames that left (until :meth:`pop_final`).
+        recent: frame -> final estimate of the two newest frames that left, kept for
+            :meth:`latest` (after a pause longer than the lag, or a lag shorter than a
+            marginalisation block, the previous frame has left when the next one arrives).
         count: frames received so far.
         last_time: the timestamp of the last frame received (``None`` before the first).
         recoveries: gtsam failures caught and recovered from.
@@ -115,6 +118,7 @@ class Window:
         self.thetas: dict[int, FloatArray] = {}
         self.status: dict[int, NDArray[np.str_]] = {}
         self.final: dict[int, SmootherFrame] = {}
+        self.recent: dict[int, FloatArray] = {}
         self.count = 0
         self.last_time: float | None = None
         self.recoveries = 0
@@ -150,6 +154,22 @@ class Window:
         self.final[frame] = SmootherFrame(frame, self.times.pop(frame), thetas, sigmas,
                                           self.status.pop(frame))
         self.thetas.pop(frame, None)
+        self._keep_recent(frame, thetas)
+
+    def _keep_recent(self, frame: int, thetas: FloatArray) -> None:
+        self.recent[frame] = np.asarray(thetas, dtype=float).copy()
+        for g in sorted(self.recent)[:-2]:
+            del self.recent[g]
+
+    def latest(self, frame: int) -> FloatArray | None:
+        """The latest estimate ``(S,)`` of ``frame``: inside the window, or one of the two
+        newest frames that left; ``None`` otherwise (e.g. before the stream began)."""
+        inside = self.thetas.get(frame)
+        return inside if inside is not None else self.recent.get(frame)
+
+    def inside(self, frame: int) -> bool:
+        """Whether ``frame``'s variables are still in the window (not marginalised)."""
+        return frame in self.stamps
 
     def leave_all_but(self, frame: int, fallback: FloatArray) -> None:
         """After a restart every frame but ``frame`` leaves with its latest estimate (or
@@ -159,6 +179,7 @@ class Window:
             self.stamps.pop(g)
             self.final[g] = SmootherFrame(g, self.times.pop(g), est.copy(),
                                           np.full(self.n_segments, np.nan), self.status.pop(g))
+            self._keep_recent(g, est)
 
     def pop_final(self) -> list[SmootherFrame]:
         """The frames that left since the last call, in order, and forget them."""
