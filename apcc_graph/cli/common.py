@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from pathlib import Path
 from typing import NoReturn
 
 import numpy as np
@@ -37,7 +38,8 @@ def _number_type(check: Callable[[float], bool], what: str,
         try:
             value = cast(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+            kind = "an integer" if cast is int else "a number"
+            raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
         if not (math.isfinite(value) and check(value)):
             raise argparse.ArgumentTypeError(f"{text!r}: expected {what}")
         return value
@@ -86,6 +88,15 @@ def force_option(help: str) -> argparse.ArgumentParser:  # noqa: A002
     parent = argparse.ArgumentParser(add_help=False)
     parent.add_argument("--force", action="store_true", help=help)
     return parent
+
+
+def check_output_folder(path: str | Path, force: bool) -> Path:
+    """The output folder of a command: new or empty, or anything with ``--force`` (the one rule
+    of every command that writes a folder)."""
+    out = Path(path)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
+        raise UserError(f"{out}: exists and is not empty; choose another --out or add --force")
+    return out
 
 
 def deg(radians: float) -> str:

@@ -9,7 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from apcc_graph.cli.common import FORMATTER, UserError, out_option
+from apcc_graph.cli.common import (
+    FORMATTER,
+    UserError,
+    check_output_folder,
+    force_option,
+    out_option,
+)
+from apcc_graph.model.robot import Robot
 
 EXAMPLE = ("example:\n  apcc-graph estimate data/sequences/planar_three --method batch "
            "--out /tmp/est --theta0-deg 20.5,-15.2,21.3")
@@ -21,7 +28,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "estimate", help="estimate every frame's segment angles of a sequence folder",
         description="Estimate the bending angles of a sequence and write theta.csv and one "
         "TUM trajectory per segment tip (tips_seg_<i>.tum) into --out.",
-        epilog=EXAMPLE, formatter_class=FORMATTER, parents=[out_option("output folder")],
+        epilog=EXAMPLE, formatter_class=FORMATTER,
+        parents=[out_option("output folder"),
+                 force_option("write into a non-empty --out (replaces its estimate files)")],
     )
     est.add_argument("sequence", help="sequence folder")
     est.add_argument("--method", choices=("chain", "batch", "smoother"), default="batch",
@@ -49,8 +58,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     est.set_defaults(run=run)
 
 
-def _theta0(text: str | None, n_segments: int) -> np.ndarray | None:
-    """``--theta0-deg``: one angle per segment, radians; ``None`` when not given."""
+def _theta0(text: str | None, robot: Robot) -> np.ndarray | None:
+    """``--theta0-deg``: one angle per segment within its theta_max, radians; ``None`` when
+    not given."""
+    n_segments = robot.n_segments
     if text is None:
         return None
     try:
@@ -60,6 +71,10 @@ def _theta0(text: str | None, n_segments: int) -> np.ndarray | None:
     if len(values) != n_segments or not all(math.isfinite(v) for v in values):
         raise UserError(f"--theta0-deg {text!r}: expected {n_segments} finite angles in degrees "
                         "(one per segment)")
+    for i, (value, seg) in enumerate(zip(values, robot.segments, strict=True)):
+        if abs(math.radians(value)) > seg.theta_max:
+            raise UserError(f"--theta0-deg {text!r}: {value:g} deg is beyond segment {i + 1}'s "
+                            f"theta_max of {math.degrees(seg.theta_max):g} deg")
     return np.radians(values)
 
 
@@ -102,8 +117,9 @@ def run(args: argparse.Namespace) -> str:
     from apcc_graph.io.estimates import save_estimate
 
     sequence = load_sequence(args.sequence)
-    theta0 = _theta0(args.theta0_deg, sequence.n_segments)
+    theta0 = _theta0(args.theta0_deg, sequence.robot)
     options = _options(args)
+    check_output_folder(args.out, args.force)  # after the inputs: their errors come first
     try:
         result = estimate(sequence, method=args.method, theta0=theta0, **options)
     except ValueError as error:

@@ -13,6 +13,7 @@ from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
     at_least,
+    check_output_folder,
     force_option,
     fraction,
     non_negative,
@@ -88,9 +89,7 @@ def run(args: argparse.Namespace) -> str:
     from apcc_graph.io import load_robot, save_sequence
     from apcc_graph.simulation.simulator import simulate
 
-    out = Path(args.out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
-        raise UserError(f"{out}: exists and is not empty; choose another --out or add --force")
+    out = check_output_folder(args.out, args.force)
     scene = args.scene or ("room" if args.images else "points")
     if args.images and scene != "room":
         raise UserError("--images renders the textured room: use --scene room (or leave "

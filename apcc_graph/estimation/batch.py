@@ -335,7 +335,7 @@ def batch_estimate(
     if init not in INITS:
         raise ValueError(f"init = {init!r}: expected one of {INITS}")
     n_seg = sequence.n_segments
-    theta0 = np.zeros(n_seg) if theta0 is None else np.asarray(theta0, dtype=float)
+    theta0 = sequence.robot.configuration(theta0)
     initial, status = _initial_angles(sequence, theta0, initial, init, options, progress)
     inliers = np.zeros((sequence.n_frames, n_seg), dtype=np.int64)
     robot, cal_sigmas = sequence.robot, None

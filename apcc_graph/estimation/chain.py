@@ -49,12 +49,7 @@ def chain_estimate(
     robot = sequence.robot
     n_frames, n_seg = sequence.n_frames, robot.n_segments
     thetas = np.zeros((n_frames, n_seg))
-    if theta0 is not None:
-        theta0 = np.asarray(theta0, dtype=float)
-        if theta0.shape != (n_seg,) or not np.all(np.isfinite(theta0)):
-            raise ValueError(f"theta0 has shape {theta0.shape}: expected ({n_seg},) finite "
-                             "angles in radians")
-        thetas[0] = theta0
+    thetas[0] = robot.configuration(theta0)
     status = np.full((n_frames, n_seg), "initial", dtype="<U24")
     inliers = np.zeros((n_frames, n_seg), dtype=np.int64)
     rng = np.random.default_rng(seed)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from os import PathLike
 from typing import Any
 
 from numpy.typing import ArrayLike
@@ -37,8 +38,18 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             smoother with ``vision="epipolar"``).
 
     Raises:
-        ValueError: an unknown method.
+        TypeError: ``sequence`` is not a :class:`~apcc_graph.model.sequence.Sequence` (a path
+            must be loaded first, with ``apcc_graph.load_sequence``).
+        ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
+            ``theta_max`` (radians).
     """
+    if not isinstance(sequence, Sequence):
+        hint = (" (a path: load it first, apcc_graph.load_sequence(path))"
+                if isinstance(sequence, str | PathLike) else "")
+        raise TypeError(f"sequence: expected a Sequence, got {type(sequence).__name__}{hint}")
+    if method not in METHODS:
+        raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
+    sequence.robot.configuration(theta0)
     if method in ("batch", "smoother") and (theta0_sigma is not None or vision is not None
                                             or threshold_px is not None):
         from dataclasses import replace

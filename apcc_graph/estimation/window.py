@@ -261,12 +261,7 @@ def start_angles(owner: str, robot: Robot, theta0: ArrayLike | None) -> FloatArr
     that ``robot`` is a :class:`~apcc_graph.model.robot.Robot`."""
     if not isinstance(robot, Robot):
         raise ValueError(f"{owner}.robot: expected a Robot, got {type(robot).__name__}")
-    n_seg = robot.n_segments
-    start = np.zeros(n_seg) if theta0 is None else np.asarray(theta0, dtype=float)
-    if start.shape != (n_seg,) or not np.all(np.isfinite(start)):
-        raise ValueError(f"{owner}.theta0 has shape {start.shape}: expected ({n_seg},) finite "
-                         "angles in radians")
-    return start
+    return robot.configuration(theta0, f"{owner}.theta0")
 
 
 def observed_camera(robot: Robot, frame: int, cam: int) -> TipCamera:

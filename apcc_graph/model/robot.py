@@ -102,6 +102,35 @@ class Robot:
             )
         return arr
 
+    def configuration(self, values: ArrayLike | None, name: str = "theta0") -> FloatArray:
+        """``values`` checked as one configuration: ``(S,)`` finite angles in radians within
+        each segment's ``[-theta_max, theta_max]``; ``None`` is the straight robot.
+
+        Raises:
+            ValueError: the message names ``name``, what is wrong and, for an angle out of
+                range, the segment (1-based, as in files) and its limit in degrees (angles in
+                degrees given where radians are expected usually land here).
+        """
+        if values is None:
+            return np.zeros(self.n_segments)
+        try:
+            arr = np.asarray(values, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} = {values!r}: expected {self.n_segments} angles in "
+                             "radians") from None
+        if arr.shape != (self.n_segments,):
+            raise ValueError(f"{name} has shape {arr.shape}: expected ({self.n_segments},), "
+                             "one angle per segment in radians")
+        for i, (value, seg) in enumerate(zip(arr.tolist(), self._segments, strict=True)):
+            if not np.isfinite(value):
+                raise ValueError(f"{name}[{i}] = {value!r}: expected a finite angle (radians)")
+            if abs(value) > seg.theta_max:
+                raise ValueError(
+                    f"{name}[{i}] = {value!r} rad ({np.degrees(value):.1f} deg) is beyond "
+                    f"segment {i + 1}'s theta_max of {np.degrees(seg.theta_max):.1f} deg "
+                    "(angles are in radians)")
+        return arr
+
     def forward(
         self,
         thetas: ArrayLike,
