@@ -84,3 +84,41 @@ def test_cli_estimate_refuses_a_folder_in_use_without_force(
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
     assert main([*args, "--force"]) == 0
     assert (out / "theta.csv").is_file() and (out / "notes.txt").read_text() == "mine"
+
+
+def without_camera(sequence: apcc_graph.Sequence, cams: set[int]) -> apcc_graph.Sequence:
+    tracks = {cam: t for cam, t in sequence.tracks.items() if cam not in cams}
+    return apcc_graph.Sequence(sequence.robot, sequence.timestamps, tracks,
+                               world_T_base=sequence.world_T_base, thetas=sequence.thetas)
+
+
+def test_a_camera_that_never_sees_anything_is_named(sample: apcc_graph.Sequence) -> None:
+    from apcc_graph.estimation.methods import ObservationWarning
+
+    blind = without_camera(sample, {1})
+    with pytest.warns(ObservationWarning, match=r"camera cam_2 \(segment 2\) observed nothing"):
+        apcc_graph.estimate(blind, method="chain", theta0=sample.thetas[0])
+
+
+def test_a_sequence_without_observations_is_refused(sample: apcc_graph.Sequence) -> None:
+    with pytest.raises(ValueError, match=r"no observations.*apcc-graph track"):
+        apcc_graph.estimate(without_camera(sample, {0, 1, 2}), method="batch")
+
+
+def test_cli_warns_in_one_line_naming_the_camera(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    import shutil
+
+    folder = tmp_path / "seq"
+    shutil.copytree(SAMPLE, folder)
+    (folder / "tracks" / "cam_3.csv").unlink()
+    assert main(["estimate", str(folder), "--method", "chain", "--out", str(tmp_path / "e"),
+                 THETA0_DEG]) == 0
+    err = capsys.readouterr().err  # also the progress bars
+    warned = [line for line in err.splitlines() if line.startswith("apcc-graph: warning:")]
+    assert len(warned) == 1 and "camera cam_3 (segment 3) observed nothing" in warned[0]
+    assert "Traceback" not in err and "UserWarning" not in err
+    shutil.rmtree(folder / "tracks")
+    assert main(["estimate", str(folder), "--method", "chain", "--out", str(tmp_path / "f"),
+                 THETA0_DEG]) == 1
+    assert "no observations" in one_line_error(capsys)

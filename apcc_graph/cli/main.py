@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Sequence
 
 from apcc_graph import __version__
@@ -30,12 +31,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str,
+                      lineno: int, file: object = None, line: str | None = None) -> None:
+    """Warnings of the library as one line on stderr, like errors."""
+    print(f"apcc-graph: warning: {message}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``apcc-graph``; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        print(args.run(args))
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line_warning
+            print(args.run(args))
     except (UserError, ValueError, OSError) as exc:
         if args.debug:
             raise

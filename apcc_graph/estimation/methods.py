@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from os import PathLike
 from typing import Any
 
@@ -12,6 +13,30 @@ from apcc_graph.model.sequence import Sequence
 
 METHODS = ("chain", "batch", "smoother")
 """Estimators available."""
+
+
+class ObservationWarning(UserWarning):
+    """A camera of the robot observed nothing in the whole sequence: its segment's angle rests
+    on the cameras further out and on the motion prior."""
+
+
+def check_observations(sequence: Sequence) -> None:
+    """Warn for each camera without a single observation; refuse a sequence without any.
+
+    Raises:
+        ValueError: no camera observed anything (e.g. ``tracks/`` empty or missing).
+    """
+    counts = {cam: 0 if sequence.tracks.get(cam) is None else len(sequence.tracks[cam])
+              for cam in sequence.robot.camera_segments}
+    if not any(counts.values()):
+        raise ValueError("the sequence has no observations: no camera has a track (tracks/ "
+                         "empty or missing? a folder of images needs `apcc-graph track` first)")
+    for cam, count in counts.items():
+        if count == 0:
+            warnings.warn(f"camera cam_{cam + 1} (segment {cam + 1}) observed nothing in the "
+                          f"whole sequence: segment {cam + 1}'s angle rests on the cameras "
+                          "further out and on the motion prior", ObservationWarning,
+                          stacklevel=3)
 
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
@@ -41,7 +66,10 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         TypeError: ``sequence`` is not a :class:`~apcc_graph.model.sequence.Sequence` (a path
             must be loaded first, with ``apcc_graph.load_sequence``).
         ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
-            ``theta_max`` (radians).
+            ``theta_max`` (radians); a sequence without a single observation.
+
+    Warns:
+        ObservationWarning: a camera observed nothing in the whole sequence (named).
     """
     if not isinstance(sequence, Sequence):
         hint = (" (a path: load it first, apcc_graph.load_sequence(path))"
@@ -50,6 +78,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     if method not in METHODS:
         raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
     sequence.robot.configuration(theta0)
+    check_observations(sequence)
     if method in ("batch", "smoother") and (theta0_sigma is not None or vision is not None
                                             or threshold_px is not None):
         from dataclasses import replace
