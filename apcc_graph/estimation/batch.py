@@ -215,15 +215,20 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
                    calibration_sigmas if calibrate else None)
     thetas = np.array(initial, dtype=float)
     cal = (np.array([[s.k, s.delta_max] for s in robot.segments]) if calibrate else None)
+    # One bar over every long stage: triangulation, the outlier rounds, the marginals.
+    bar = tqdm(total=max_final_rounds + 2, desc="batch", disable=not progress, leave=False)
+    bar.set_postfix_str("triangulating the tracks")
     for t in terms:
         t.measure(thetas, robust=True)
     if schedule is None:
         schedule = gnc_start(np.concatenate([n for t in terms for n in t.norms] or [[]]),
                              options.inlier_sigmas)
     stages = schedule + [math.inf] * (max_final_rounds - 1)
+    bar.total = len(stages) + 2
+    bar.update()
     iterations = 0
-    bar = tqdm(total=len(stages), desc="batch", disable=not progress, leave=False)
     for stage, mu in enumerate(stages):
+        bar.set_postfix_str(f"outlier round {stage + 1} of at most {len(stages)}")
         if stage > 0:
             segments = None if cal is None else _segments(robot, cal)
             for t in terms:
@@ -236,12 +241,15 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         thetas, its, cal = optimise(graph, thetas, frames, max_iterations, tolerance, cal)
         iterations += its
         bar.update()
-    bar.close()
+    bar.n = len(stages) + 1
+    bar.set_postfix_str("marginal sigmas")
     if marginals:
         sigmas, cal_sigmas = marginal_deviations(graph, thetas, frames, calibration=cal)
     else:
         sigmas = np.full(thetas.shape, np.nan)
         cal_sigmas = None if cal is None else np.full(cal.shape, np.nan)
+    bar.update()
+    bar.close()
     inliers = np.zeros(thetas.shape, dtype=np.int64)
     for t in terms:
         inliers[:, t.camera] = t.inliers_per_frame(sequence.n_frames)
