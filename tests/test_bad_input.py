@@ -122,3 +122,28 @@ def test_cli_warns_in_one_line_naming_the_camera(tmp_path: Path,
     assert main(["estimate", str(folder), "--method", "chain", "--out", str(tmp_path / "f"),
                  THETA0_DEG]) == 1
     assert "no observations" in one_line_error(capsys)
+
+
+def test_every_command_that_writes_needs_force_to_replace(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """One rule: ``simulate`` and ``estimate`` refuse a non-empty folder, ``calibrate`` and
+    ``plot`` an existing file, unless ``--force``; the file is left as it was."""
+    paper = str(SAMPLE.parents[1] / "calibration" / "paper_example.toml")
+    robot = tmp_path / "robot.toml"
+    robot.write_text("mine")
+    assert main(["calibrate", paper, "--output", str(robot)]) == 1
+    assert "robot.toml: exists; choose another path or add --force" in one_line_error(capsys)
+    assert robot.read_text() == "mine"
+    assert main(["calibrate", paper, "--output", str(robot), "--force"]) == 0
+    assert robot.read_text().startswith("format")
+    est = tmp_path / "est"
+    assert main(["estimate", str(SAMPLE), "--method", "chain", "--out", str(est),
+                 THETA0_DEG]) == 0
+    figure = tmp_path / "angles.png"
+    figure.write_bytes(b"mine")
+    capsys.readouterr()
+    assert main(["plot", str(est), "--output", str(figure)]) == 1
+    assert "angles.png: exists" in one_line_error(capsys)
+    assert figure.read_bytes() == b"mine"
+    assert main(["plot", str(est), "--output", str(figure), "--force"]) == 0
+    assert figure.stat().st_size > 1000

@@ -11,6 +11,7 @@ from pathlib import Path
 from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
+    check_output_file,
     deg,
     force_option,
     non_negative,
@@ -42,7 +43,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                             required=False, metavar="ROBOT.toml"),
                  seed_option(None, "random seed of --render (default 0)"),
                  force_option("--render into a non-empty PATH (replaces its calibration.toml "
-                              "and *.png)")],
+                              "and *.png), or replace an existing --output")],
     )
     cal.add_argument("file", metavar="PATH",
                      help="calibration TOML file, or folder of calibration images")
@@ -75,11 +76,14 @@ def run(args: argparse.Namespace) -> str:
     from apcc_graph.calibration.files import calibrate_measurements, load_tip_measurements
 
     path = Path(args.file)
+    if args.out is not None:
+        check_output_file(args.out, args.force)
     lines = []
     if args.render:
         lines.append(_render_calibration_images(args, path))
     elif given := [name for name in _RENDER_OPTIONS
-                   if getattr(args, name) is not None and getattr(args, name) is not False]:
+                   if getattr(args, name) is not None and getattr(args, name) is not False
+                   and not (name == "force" and args.out is not None)]:
         option = "--" + given[0].replace("_", "-")
         raise UserError(f"{option} applies to --render only")
     if path.is_dir():

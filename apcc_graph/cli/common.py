@@ -99,6 +99,15 @@ def check_output_folder(path: str | Path, force: bool) -> Path:
     return out
 
 
+def check_output_file(path: str | Path, force: bool) -> Path:
+    """An output file of a command: new, or replaced with ``--force`` (the rule of
+    :func:`check_output_folder`, for a file)."""
+    out = Path(path)
+    if out.exists() and not force:
+        raise UserError(f"{out}: exists; choose another path or add --force to replace it")
+    return out
+
+
 def deg(radians: float) -> str:
     """An angle for a table: degrees with three decimals, ``-`` for NaN."""
     return "-" if math.isnan(radians) else f"{math.degrees(radians):.3f} deg"

@@ -6,7 +6,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from apcc_graph.cli.common import FORMATTER, out_option, positive, truth_for
+from apcc_graph.cli.common import (
+    FORMATTER,
+    check_output_file,
+    force_option,
+    out_option,
+    positive,
+    truth_for,
+)
 
 EXAMPLE = ("example:\n  apcc-graph plot /tmp/est --truth data/sequences/planar_three "
            "--output /tmp/angles.png")
@@ -20,7 +27,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "marginal standard deviations, the ground truth and the error when --truth is given "
         "(the paper's Fig. 11).",
         epilog=EXAMPLE, formatter_class=FORMATTER,
-        parents=[out_option("figure file (png, pdf, svg, ...)", metavar="FIG.png")],
+        parents=[out_option("figure file (png, pdf, svg, ...)", metavar="FIG.png"),
+                 force_option("replace an existing figure file")],
     )
     plt.add_argument("estimate", help="folder with theta.csv (the --out of estimate)")
     plt.add_argument("--truth", help="sequence folder with ground truth")
@@ -35,6 +43,7 @@ def run(args: argparse.Namespace) -> str:
     from apcc_graph.plots import angles_figure, check_figure_path, save_figure
 
     check_figure_path(args.out)
+    check_output_file(args.out, args.force)
     timestamps, thetas, sigmas = load_theta_csv(Path(args.estimate) / "theta.csv")
     truth = None if args.truth is None else truth_for(args.estimate, thetas, args.truth)
     fig = angles_figure(timestamps, thetas, sigmas, truth, n_sigma=args.sigmas,
