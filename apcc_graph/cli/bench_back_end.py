@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 
 from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
-    at_least,
+    frames_option,
     int_list,
     non_negative,
     seeds_option,
@@ -25,10 +26,13 @@ EXAMPLES = {
 """Example commands per benchmark of this module."""
 
 
-def _bench(benches: argparse._SubParsersAction, name: str, seeds: str, **kwargs: object
+def _bench(benches: argparse._SubParsersAction, name: str, seeds: str,
+           parents: Sequence[argparse.ArgumentParser] = (), **kwargs: object
            ) -> argparse.ArgumentParser:
+    """Add benchmark ``name`` with its example, ``--seeds`` and the other ``parents``."""
     return benches.add_parser(name, epilog=f"example:\n  {EXAMPLES[name]}",
-                              formatter_class=FORMATTER, parents=[seeds_option(seeds)], **kwargs)
+                              formatter_class=FORMATTER,
+                              parents=[seeds_option(seeds), *parents], **kwargs)
 
 
 def add_parsers(benches: argparse._SubParsersAction) -> None:
@@ -39,9 +43,8 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         description="Simulate 3-segment room-scene sequences (1 px noise, 10%% and 30%% "
         "outliers, ~150 tracks per camera, 30 fps) and measure the chain, the fixed-lag "
         "smoother, the batch and the epipolar smoother beside the Cramer-Rao bound of the "
-        "same sequences (and the smoothers beside the bound of a 1 s fixed lag), in one run.")
-    smb.add_argument("--frames", type=at_least(30), default=600,
-                     help="frames of each accuracy run")
+        "same sequences (and the smoothers beside the bound of a 1 s fixed lag), in one run.",
+        parents=[frames_option(600, minimum=30, help="frames of each accuracy run")])
     smb.add_argument("--methods", default="chain,smoother,batch,epipolar smoother",
                      help="estimators, comma-separated (default: %(default)s)")
     smb.add_argument("--outliers", default="0.1,0.3",
@@ -58,8 +61,8 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         description="Simulate room-scene sequences of the 3-segment robot, give the batch "
         "segment models with k and delta_max off, and compare the batch with the true "
         "models, the wrong ones and the wrong ones self-calibrated, beside the bound with "
-        "the models known and unknown (which also bounds k and delta_max).")
-    scb.add_argument("--frames", type=at_least(30), default=600)
+        "the models known and unknown (which also bounds k and delta_max).",
+        parents=[frames_option(600, minimum=30)])
     scb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction")
     scb.add_argument("--dk", type=float, default=0.03, help="error of every segment's k")
     scb.add_argument("--dd-deg", type=float, default=3.0,
@@ -71,8 +74,8 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         help="images -> tracks -> smoother vs the same motion as simulated tracks",
         description="Render each tip camera's view of a textured room along a simulated "
         "motion, track the images (KLT) and run the smoother; compare with the same motion "
-        "observed as simulated 1 px tracks, and time the tracker.")
-    imb.add_argument("--frames", type=at_least(10), default=150)
+        "observed as simulated 1 px tracks, and time the tracker.",
+        parents=[frames_option(150, minimum=10)])
     imb.add_argument("--noise", type=non_negative, default=2.0,
                      help="sensor noise, grey levels (default 2)")
     imb.add_argument("--texture", choices=("skimage", "procedural"), default="skimage")

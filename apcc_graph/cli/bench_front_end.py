@@ -7,8 +7,17 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 
-from apcc_graph.cli.common import FORMATTER, UserError, at_least, deg, seed_option
+from apcc_graph.cli.common import (
+    FORMATTER,
+    UserError,
+    at_least,
+    deg,
+    frames_option,
+    robot_option,
+    seed_option,
+)
 
 EXAMPLES = {
     "kinematics": "apcc-graph bench kinematics --frames 1000000",
@@ -21,12 +30,16 @@ EXAMPLES = {
 """One example command per benchmark of this module."""
 
 DEFAULT_ROBOT = "data/robots/planar_three.toml"
+"""The robot of ``kinematics`` and ``sequences``: the repository's three-segment planar robot."""
 
 
-def _bench(benches: argparse._SubParsersAction, name: str, **kwargs: object
+def _bench(benches: argparse._SubParsersAction, name: str,
+           parents: Sequence[argparse.ArgumentParser] = (), **kwargs: object
            ) -> argparse.ArgumentParser:
+    """Add benchmark ``name`` with its example, ``--seed`` and the other ``parents``."""
     return benches.add_parser(name, epilog=f"example:\n  {EXAMPLES[name]}",
-                              formatter_class=FORMATTER, parents=[seed_option(0)], **kwargs)
+                              formatter_class=FORMATTER,
+                              parents=[seed_option(0), *parents], **kwargs)
 
 
 def add_parsers(benches: argparse._SubParsersAction) -> None:
@@ -34,19 +47,17 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
     kin = _bench(benches, "kinematics",
                  help="vectorised forward kinematics vs a matmul chain and a gtsam loop",
                  description="Time Robot.forward over many frames, and its peers on the same "
-                 "angles.")
-    kin.add_argument("--robot", default=DEFAULT_ROBOT,
-                     help="robot.toml (default: the repository's three-segment planar robot)")
-    kin.add_argument("--frames", type=int, default=1_000_000, help="frames (default 10^6)")
+                 "angles.",
+                 parents=[robot_option(DEFAULT_ROBOT),
+                          frames_option(1_000_000, minimum=None, help="frames (default 10^6)")])
     kin.add_argument("--repeats", type=int, default=3, help="timing repeats, best kept")
     kin.set_defaults(run=run_kinematics)
 
     seqb = _bench(benches, "sequences",
                   help="simulate, save and load sequences; load vs loadtxt and csv peers",
                   description="Time the simulator (3 x 1000 frames x ~200 tracks) and loading "
-                  "about a million track rows, with numpy.loadtxt and the csv module as peers.")
-    seqb.add_argument("--robot", default=DEFAULT_ROBOT)
-    seqb.add_argument("--frames", type=at_least(2), default=1000)
+                  "about a million track rows, with numpy.loadtxt and the csv module as peers.",
+                  parents=[robot_option(DEFAULT_ROBOT), frames_option(1000, minimum=2)])
     seqb.add_argument("--rows", type=at_least(1), default=1_000_000,
                       help="track rows for the load test (default 10^6)")
     seqb.add_argument("--repeats", type=at_least(1), default=3)
@@ -93,8 +104,7 @@ def _add_accuracy_benches(benches: argparse._SubParsersAction) -> None:
                  help="KLT tracking vs ORB matching: images per second and pixel error",
                  description="Track a seeded textured image sequence whose frame-to-frame "
                  "homographies are known, with the KLT tracker and with ORB + brute-force "
-                 "matching, and score both.")
-    trb.add_argument("--frames", type=at_least(3), default=200)
+                 "matching, and score both.", parents=[frames_option(200, minimum=3)])
     trb.add_argument("--noise", type=float, default=2.0, help="sensor noise, grey levels")
     trb.set_defaults(run=run_tracking)
 

@@ -13,6 +13,7 @@ from apcc_graph.cli.common import (
     UserError,
     check_output_file,
     deg,
+    degree_list,
     force_option,
     non_negative,
     out_option,
@@ -112,11 +113,8 @@ def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
                if getattr(args, name) is None]
     if missing:
         raise UserError(f"--render needs {', '.join(missing)}")
-    try:
-        bends = [math.radians(float(v)) for v in args.bends_deg.split(",")]
-    except ValueError:
-        raise UserError(f"--bends-deg {args.bends_deg!r}: expected comma-separated degrees "
-                        "(write --bends-deg=-80,-40,0 when the first is negative)") from None
+    bends = [math.radians(v) for v in degree_list(
+        args.bends_deg, "--bends-deg", " (write --bends-deg=-80,-40,0 when the first is negative)")]
     theta_max = max(abs(b) for b in bends) if args.theta_max_deg is None else math.radians(
         args.theta_max_deg)
     segment = Segment(args.length, k=args.k, delta_max=math.radians(args.delta_max_deg or 0.0),

@@ -1,6 +1,8 @@
 """What the subcommands of ``apcc-graph`` share: the user-error type, the one-line-error parser,
-number types for options, and the parent parsers of options that mean the same thing in every
-command (``--seed``, ``--seeds``, ``--out``/``--output``, ``--force``).
+number types for options, the parent parsers of options that mean the same thing in every
+command (``--seed``, ``--seeds``, ``--out``/``--output``, ``--force``, ``--robot``, ``--frames``,
+and an estimate folder with its ``--truth``), the rule for output files and folders, and the
+readers of comma-separated lists (degrees, integers).
 
 A subcommand module turns parsed arguments into a call of a library function that returns a
 result object, and formats that result as text. User mistakes (a missing or malformed file, a
@@ -29,12 +31,14 @@ class Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line on stderr and exit code 1."""
 
     def error(self, message: str) -> NoReturn:
+        """Print ``message`` as one line with a pointer to ``--help`` and exit with code 1."""
         self.exit(1, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _number_type(check: Callable[[float], bool], what: str,
                  cast: Callable[[str], float] = float) -> Callable[[str], float]:
     def parse(text: str) -> float:
+        """``text`` as a number of the option's kind and range, else a usage error."""
         try:
             value = cast(text)
         except ValueError:
@@ -90,6 +94,36 @@ def force_option(help: str) -> argparse.ArgumentParser:  # noqa: A002
     return parent
 
 
+def robot_option(default: str | None = None) -> argparse.ArgumentParser:
+    """Parent parser of ``--robot``: a robot.toml file, required unless ``default`` is given."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("--robot", required=default is None, default=default,
+                        help="robot.toml" + ("" if default is None else " (default: %(default)s)"))
+    return parent
+
+
+def frames_option(default: int | None = None, minimum: int | None = 1,
+                  help: str | None = None) -> argparse.ArgumentParser:  # noqa: A002
+    """Parent parser of ``--frames``: how many frames the command simulates or times; required
+    unless ``default`` is given. ``minimum=None`` leaves the range check to the command."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("--frames", type=int if minimum is None else at_least(minimum),
+                        required=default is None, default=default,
+                        help=help or ("number of frames" if default is None
+                                      else "frames (default: %(default)s)"))
+    return parent
+
+
+def estimate_option(truth_required: bool) -> argparse.ArgumentParser:
+    """Parent parser of an estimate folder to read (the ``--out`` of ``estimate``) and the
+    ``--truth`` sequence to compare it with."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("estimate", help="folder with theta.csv (the --out of estimate)")
+    parent.add_argument("--truth", required=truth_required,
+                        help="sequence folder with ground truth")
+    return parent
+
+
 def check_output_folder(path: str | Path, force: bool) -> Path:
     """The output folder of a command: new or empty, or anything with ``--force`` (the one rule
     of every command that writes a folder)."""
@@ -111,6 +145,15 @@ def check_output_file(path: str | Path, force: bool) -> Path:
 def deg(radians: float) -> str:
     """An angle for a table: degrees with three decimals, ``-`` for NaN."""
     return "-" if math.isnan(radians) else f"{math.degrees(radians):.3f} deg"
+
+
+def degree_list(text: str, option: str, hint: str = "") -> list[float]:
+    """Comma-separated degrees of ``option`` (e.g. ``--bends-deg=-80,0,80``), as given; ``hint``
+    ends the error message."""
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise UserError(f"{option} {text!r}: expected comma-separated degrees{hint}") from None
 
 
 def int_list(text: str, option: str) -> list[int]:

@@ -12,7 +12,9 @@ import numpy as np
 from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
+    at_least,
     check_output_folder,
+    degree_list,
     force_option,
     out_option,
 )
@@ -32,7 +34,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         parents=[out_option("output folder"),
                  force_option("write into a non-empty --out (replaces its estimate files)")],
     )
-    est.add_argument("sequence", help="sequence folder")
+    est.add_argument("sequence", nargs="+",
+                     help="sequence folder; several, or a folder of sequence folders, are "
+                     "estimated each into --out/<name>/ with a summary.csv")
     est.add_argument("--method", choices=("chain", "batch", "smoother"), default="batch",
                      help="chain: the paper's frame-by-frame method; batch: the whole sequence "
                      "in one factor graph; smoother: fixed-lag smoother, frame by frame "
@@ -55,7 +59,25 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      help="self-calibration: estimate each segment's k and delta_max with the "
                      "angles (batch; or smoother with --vision epipolar); the batch writes "
                      "robot_calibrated.toml")
+    many = est.add_argument_group(
+        "many sequences", "with several sequences, each goes to --out/<name>/ and --out gets\n"
+        "summary.csv; a re-run skips sequences whose outputs are complete (--force redoes\n"
+        "them); a sequence that fails is reported and does not stop the others")
+    many.add_argument("--workers", type=at_least(1), default=None,
+                      help="Dask workers on a local cluster (default: one per core; 1 runs in "
+                      "this process; Dask is the [dask] extra)")
+    many.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                      help="run on an existing dask.distributed cluster instead")
     est.set_defaults(run=run)
+
+
+def _theta0_list(text: str) -> np.ndarray:
+    """``--theta0-deg`` as radians, unchecked against a robot (each sequence's estimate checks
+    it against its own)."""
+    try:
+        return np.radians([float(v) for v in text.split(",")])
+    except ValueError:
+        raise UserError(f"--theta0-deg {text!r}: expected comma-separated degrees") from None
 
 
 def _theta0(text: str | None, robot: Robot) -> np.ndarray | None:
@@ -64,10 +86,7 @@ def _theta0(text: str | None, robot: Robot) -> np.ndarray | None:
     n_segments = robot.n_segments
     if text is None:
         return None
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise UserError(f"--theta0-deg {text!r}: expected comma-separated degrees") from None
+    values = degree_list(text, "--theta0-deg")
     if len(values) != n_segments or not all(math.isfinite(v) for v in values):
         raise UserError(f"--theta0-deg {text!r}: expected {n_segments} finite angles in degrees "
                         "(one per segment)")
@@ -111,12 +130,37 @@ def _options(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> str:
-    """Estimate, write the estimate (and the calibrated robot) and return the summary."""
+    """Estimate one sequence or many; return the summary."""
+    single = len(args.sequence) == 1 and (Path(args.sequence[0]) / "frames.csv").is_file()
+    if not single:
+        return _run_many(args)
+    if args.workers is not None or args.scheduler is not None:
+        raise UserError("--workers and --scheduler apply to several sequences only")
+    return _run_one(args, args.sequence[0])
+
+
+def _run_many(args: argparse.Namespace) -> str:
+    """Several sequences: each into --out/<name>/, then summary.csv."""
+    from apcc_graph.estimation.many import estimate_many, format_runs, sequence_folders
+
+    if args.calibrate:
+        raise UserError("--calibrate applies to one sequence at a time")
+    folders = sequence_folders(args.sequence)
+    options = {**_options(args), "progress": False}
+    if args.theta0_deg is not None:
+        options["theta0"] = _theta0_list(args.theta0_deg)
+    runs = estimate_many(folders, args.out, args.method, options, workers=args.workers,
+                         scheduler=args.scheduler, redo=args.force, progress=True)
+    return format_runs(runs, args.out)
+
+
+def _run_one(args: argparse.Namespace, folder: str) -> str:
+    """One sequence: estimate, write the estimate (and the calibrated robot), summarise."""
     from apcc_graph.estimation.methods import estimate
     from apcc_graph.io import load_sequence
     from apcc_graph.io.estimates import save_estimate
 
-    sequence = load_sequence(args.sequence)
+    sequence = load_sequence(folder)
     theta0 = _theta0(args.theta0_deg, sequence.robot)
     options = _options(args)
     check_output_folder(args.out, args.force)  # after the inputs: their errors come first

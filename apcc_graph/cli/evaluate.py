@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from apcc_graph.cli.common import FORMATTER, at_least, truth_for
+from apcc_graph.cli.common import FORMATTER, at_least, estimate_option, truth_for
 
 EXAMPLE = "example:\n  apcc-graph evaluate /tmp/est --truth data/sequences/planar_three"
 
@@ -19,10 +19,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "evaluate", help="compare an estimate with a sequence's ground truth",
         description="RMS and max error per segment, overall and per window of frames (so "
         "drift shows).",
-        epilog=EXAMPLE, formatter_class=FORMATTER,
+        epilog=EXAMPLE, formatter_class=FORMATTER, parents=[estimate_option(truth_required=True)],
     )
-    ev.add_argument("estimate", help="folder with theta.csv (the --out of estimate)")
-    ev.add_argument("--truth", required=True, help="sequence folder with ground truth")
     ev.add_argument("--window", type=at_least(1), default=100, help="frames per window")
     ev.set_defaults(run=run)
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from apcc_graph.cli.common import (
     FORMATTER,
     check_output_file,
+    estimate_option,
     force_option,
     out_option,
     positive,
@@ -28,10 +29,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "(the paper's Fig. 11).",
         epilog=EXAMPLE, formatter_class=FORMATTER,
         parents=[out_option("figure file (png, pdf, svg, ...)", metavar="FIG.png"),
-                 force_option("replace an existing figure file")],
+                 force_option("replace an existing figure file"),
+                 estimate_option(truth_required=False)],
     )
-    plt.add_argument("estimate", help="folder with theta.csv (the --out of estimate)")
-    plt.add_argument("--truth", help="sequence folder with ground truth")
     plt.add_argument("--sigmas", type=positive, default=2.0,
                      help="half-width of the uncertainty band in sigmas (default 2)")
     plt.set_defaults(run=run)

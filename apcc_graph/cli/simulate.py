@@ -16,9 +16,11 @@ from apcc_graph.cli.common import (
     check_output_folder,
     force_option,
     fraction,
+    frames_option,
     non_negative,
     out_option,
     positive,
+    robot_option,
     seed_option,
 )
 
@@ -37,10 +39,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "write the sequence folder (robot.toml, frames.csv with ground truth, tracks/).",
         epilog=EXAMPLE, formatter_class=FORMATTER,
         parents=[out_option("output sequence folder"), seed_option(0),
-                 force_option("write into a non-empty --out")],
+                 force_option("write into a non-empty --out"), robot_option(),
+                 frames_option(minimum=2)],
     )
-    simp.add_argument("--robot", required=True, help="robot.toml")
-    simp.add_argument("--frames", type=at_least(2), required=True, help="number of frames")
     simp.add_argument("--noise-px", type=non_negative, default=0.5,
                       help="pixel noise std (default 0.5)")
     simp.add_argument("--outliers", type=fraction, default=0.0,

@@ -1,0 +1,223 @@
+"""Many recordings at once: each sequence folder estimated into its own output folder, and one
+summary table, in process or on a Dask cluster.
+
+A sequence's outputs are complete when its folder holds ``done.txt``, written last (after
+``theta.csv`` and the TUM files, each written atomically): a re-run skips those sequences, and a
+run killed half-way leaves nothing that looks complete. A sequence that fails is reported in the
+summary with its one-line error and does not stop the others.
+
+Dask (``pip install "apcc-graph[dask]"``) is imported only when more than one worker is asked
+for; one worker runs everything in this process.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import warnings
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from apcc_graph.io.atomic import atomic_write_text
+from apcc_graph.io.csv_table import format_number
+
+DONE = "done.txt"
+"""Written last into a sequence's output folder: its outputs are complete."""
+
+SUMMARY_COLUMNS = ("sequence", "method", "frames", "seconds", "status")
+
+
+@dataclass(frozen=True)
+class SequenceRun:
+    """What became of one sequence.
+
+    Attributes:
+        sequence: its folder.
+        out: its output folder.
+        method: the estimator.
+        frames: frames estimated (0 when it failed before).
+        seconds: wall time of loading, estimating and writing.
+        rms: ``(S,)`` RMS error per segment against the sequence's ground truth (radians);
+            empty without truth or when it failed.
+        status: ``"ok"``, ``"skipped"`` (complete outputs found) or ``"failed: <message>"``.
+    """
+
+    sequence: str
+    out: str
+    method: str
+    frames: int
+    seconds: float
+    rms: tuple[float, ...]
+    status: str
+
+
+def output_folder(out_root: str | Path, sequence: str | Path) -> Path:
+    """Where a sequence's estimate goes: ``out_root/<its folder name>``."""
+    return Path(out_root) / Path(sequence).resolve().name
+
+
+def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
+                 redo: bool = False) -> SequenceRun:
+    """Load, estimate and write one sequence; never raises for a bad sequence (the error is
+    its status). Skips it when ``out`` already holds complete outputs, unless ``redo``."""
+    from apcc_graph.estimation.methods import estimate
+    from apcc_graph.io import load_sequence
+    from apcc_graph.io.estimates import save_estimate
+
+    done = Path(out) / DONE
+    if done.is_file() and not redo:
+        return _skipped(sequence, out, method, done)
+    start = time.perf_counter()
+    try:
+        seq = load_sequence(sequence)
+        result = estimate(seq, method=method, **options)
+        save_estimate(result, out)
+        rms = () if seq.thetas is None else tuple(float(v) for v in result.rms(seq.thetas))
+        run = SequenceRun(sequence, out, method, result.n_frames,
+                          time.perf_counter() - start, rms, "ok")
+        atomic_write_text(done, summary_csv([run]))
+        return run
+    except Exception as error:  # noqa: BLE001 - any failure is this sequence's status
+        kind = "" if isinstance(error, ValueError | OSError) else f"{type(error).__name__}: "
+        message = kind + " ".join(str(error).split())
+        return SequenceRun(sequence, out, method, 0, time.perf_counter() - start, (),
+                           f"failed: {message}")
+
+
+def _skipped(sequence: str, out: str, method: str, done: Path) -> SequenceRun:
+    """The run recorded in ``done`` (the one-row summary written when it completed)."""
+    lines = done.read_text().splitlines()
+    header, row = lines[0].split(","), lines[1].split(",")
+    fields = dict(zip(header, row, strict=True))
+    rms = tuple(math.radians(float(fields[name])) for name in header if name.startswith("rms_"))
+    return SequenceRun(sequence, out, method, int(fields["frames"]), 0.0, rms, "skipped")
+
+
+def summary_csv(runs: Sequence[SequenceRun]) -> str:
+    """The text of ``summary.csv``: one row per sequence; RMS per segment in degrees (empty
+    where there is no truth)."""
+    n_seg = max((len(r.rms) for r in runs), default=0)
+    header = [*SUMMARY_COLUMNS[:4], *(f"rms_{i + 1}_deg" for i in range(n_seg)), "status"]
+    lines = [",".join(header)]
+    for r in runs:
+        rms = [format_number(math.degrees(v)) for v in r.rms] + [""] * (n_seg - len(r.rms))
+        status = r.status.replace(",", ";").replace("\n", " ")
+        lines.append(",".join([r.sequence.replace(",", "_"), r.method, str(r.frames),
+                               f"{r.seconds:.3f}", *rms, status]))
+    return "\n".join(lines) + "\n"
+
+
+def sequence_folders(paths: Iterable[str | Path]) -> list[Path]:
+    """The sequence folders named: each path is a sequence (it holds ``frames.csv``) or a
+    parent of sequences (its sub-folders that hold one), in name order.
+
+    Raises:
+        ValueError: a path that is neither; two sequences with the same folder name (their
+            outputs would collide).
+    """
+    found: list[Path] = []
+    for path in map(Path, paths):
+        if (path / "frames.csv").is_file():
+            found.append(path)
+            continue
+        children = sorted(p for p in path.iterdir() if (p / "frames.csv").is_file()) \
+            if path.is_dir() else []
+        if not children:
+            raise ValueError(f"{path}: not a sequence folder (no frames.csv) and no sequence "
+                             "folders inside")
+        found += children
+    names = [p.resolve().name for p in found]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"two sequences named {twice[0]!r}: their outputs would collide")
+    return found
+
+
+def estimate_many(sequences: Sequence[str | Path], out_root: str | Path, method: str = "batch",
+                  options: dict[str, Any] | None = None, workers: int | None = None,
+                  scheduler: str | None = None, redo: bool = False, progress: bool = False
+                  ) -> list[SequenceRun]:
+    """Estimate every sequence into ``out_root/<name>/`` and write ``out_root/summary.csv``.
+
+    Args:
+        sequences: sequence folders.
+        out_root: the folder of all outputs.
+        method, options: as :func:`apcc_graph.estimate` (the same for every sequence).
+        workers: Dask workers on a local cluster (default: one per core); 1 runs in process.
+        scheduler: address of an existing ``dask.distributed`` scheduler (then ``workers`` is
+            ignored).
+        redo: estimate again sequences whose outputs are complete (else they are skipped).
+        progress: a progress bar over the sequences.
+
+    Returns:
+        One :class:`SequenceRun` per sequence, in the order given.
+    """
+    options = dict(options or {})
+    jobs = [(str(s), str(output_folder(out_root, s))) for s in sequences]
+    Path(out_root).mkdir(parents=True, exist_ok=True)
+    if scheduler is None and (workers == 1 or (workers is None and not _has_dask())):
+        bar = tqdm(jobs, desc="sequences", disable=not progress)
+        runs = [estimate_one(seq, out, method, options, redo) for seq, out in bar]
+    else:
+        runs = _on_dask(jobs, method, options, workers, scheduler, redo, progress)
+    atomic_write_text(Path(out_root) / "summary.csv", summary_csv(runs))
+    return runs
+
+
+def _has_dask() -> bool:
+    """Whether ``dask.distributed`` is installed; without it the default is one worker, in
+    process, with a warning."""
+    import importlib.util
+
+    if importlib.util.find_spec("distributed") is not None and (os.cpu_count() or 1) > 1:
+        return True
+    if importlib.util.find_spec("distributed") is None:
+        warnings.warn('Dask is not installed (pip install "apcc-graph[dask]"): the sequences '
+                      "run one after the other in this process", stacklevel=3)
+    return False
+
+
+def _on_dask(jobs: list[tuple[str, str]], method: str, options: dict[str, Any],
+             workers: int | None, scheduler: str | None, redo: bool, progress: bool
+             ) -> list[SequenceRun]:
+    """Every job as one Dask task; results in the order of ``jobs``."""
+    try:
+        from distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ValueError('more than one worker needs Dask: pip install "apcc-graph[dask]" '
+                         "(or use --workers 1)") from None
+    options = {**options, "progress": False}
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                               processes=True, dashboard_address=None)
+    with Client(scheduler or cluster) as client:
+        futures = {client.submit(estimate_one, seq, out, method, options, redo, pure=False): i
+                   for i, (seq, out) in enumerate(jobs)}
+        runs: list[SequenceRun | None] = [None] * len(jobs)
+        bar = tqdm(total=len(jobs), desc="sequences", disable=not progress)
+        for future in as_completed(futures):
+            runs[futures[future]] = future.result()
+            bar.update()
+        bar.close()
+    if cluster is not None:
+        cluster.close()
+    return [run for run in runs if run is not None]
+
+
+def format_runs(runs: Sequence[SequenceRun], out_root: str | Path) -> str:
+    """The command line's report of a many-sequence run."""
+    counts = {s: sum(r.status.split(":")[0] == s for r in runs) for s in ("ok", "skipped",
+                                                                          "failed")}
+    lines = [f"{len(runs)} sequences -> {out_root} (summary.csv): {counts['ok']} estimated, "
+             f"{counts['skipped']} already complete, {counts['failed']} failed"]
+    for r in runs:
+        if r.status.startswith("failed"):
+            lines.append(f"  {r.sequence}: {r.status}")
+    return "\n".join(lines)
+

@@ -1,0 +1,101 @@
+"""Many sequences in one command: one output folder each, a summary, failures isolated, resume,
+and the Dask path equal to the serial one."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from apcc_graph.cli import main
+from apcc_graph.estimation.many import DONE, estimate_many, sequence_folders
+from apcc_graph.io import load_robot, load_sequence, save_sequence
+from apcc_graph.io.estimates import load_theta_csv
+from apcc_graph.simulation.simulator import simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+ROBOT = ROOT / "data" / "robots" / "planar_three.toml"
+OPTIONS = {"threshold_px": 1.0}
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Three short simulated sequences in one parent folder, and a broken fourth."""
+    parent = tmp_path_factory.mktemp("recordings")
+    robot = load_robot(ROBOT)
+    for seed in (1, 2, 3):
+        sim = simulate(robot, 40, noise_px=1.0, outlier_fraction=0.05, seed=seed)
+        save_sequence(sim.sequence, parent / f"seq_{seed}")
+    broken = parent / "seq_4"
+    save_sequence(simulate(robot, 10, seed=4).sequence, broken)
+    (broken / "frames.csv").write_text("frame,timestamp\n0,abc\n")
+    return parent
+
+
+def thetas_of(out: Path) -> dict[str, bytes]:
+    return {p.parent.name: p.read_bytes() for p in sorted(out.glob("*/theta.csv"))}
+
+
+def test_serial_and_dask_agree_bit_for_bit_and_a_failure_stops_nothing(
+        recordings: Path, tmp_path: Path) -> None:
+    folders = sequence_folders([recordings])
+    assert [f.name for f in folders] == ["seq_1", "seq_2", "seq_3", "seq_4"]
+    serial = estimate_many(folders, tmp_path / "serial", "batch", OPTIONS, workers=1)
+    pytest.importorskip("distributed")
+    dask = estimate_many(folders, tmp_path / "dask", "batch", OPTIONS, workers=2)
+    assert [r.status for r in serial] == ["ok", "ok", "ok", serial[3].status]
+    assert serial[3].status.startswith("failed: ") and "frames.csv" in serial[3].status
+    assert [r.status for r in dask] == [r.status for r in serial]
+    assert thetas_of(tmp_path / "serial") == thetas_of(tmp_path / "dask")
+    assert len(thetas_of(tmp_path / "serial")) == 3
+    summary = (tmp_path / "serial" / "summary.csv").read_text().splitlines()
+    assert summary[0] == ("sequence,method,frames,seconds,rms_1_deg,rms_2_deg,rms_3_deg,"
+                          "status")
+    assert len(summary) == 5 and summary[1].endswith(",ok") and "failed" in summary[4]
+    # the RMS is that of the written estimate against the sequence's truth
+    _, thetas, _ = load_theta_csv(tmp_path / "serial" / "seq_2" / "theta.csv")
+    truth = load_sequence(folders[1]).thetas
+    np.testing.assert_allclose(serial[1].rms, np.sqrt(np.mean((thetas - truth) ** 2, axis=0)),
+                               rtol=1e-9)
+
+
+def test_a_rerun_skips_complete_outputs_and_redoes_the_rest(recordings: Path,
+                                                           tmp_path: Path) -> None:
+    folders = sequence_folders([recordings / "seq_1", recordings / "seq_2"])
+    out = tmp_path / "out"
+    first = estimate_many(folders, out, "chain", {}, workers=1)
+    assert [r.status for r in first] == ["ok", "ok"]
+    # a run killed while writing seq_2: its outputs never got their completion mark
+    (out / "seq_2" / DONE).unlink()
+    (out / "seq_2" / "theta.csv").write_text("half")
+    again = estimate_many(folders, out, "chain", {}, workers=1)
+    assert [r.status for r in again] == ["skipped", "ok"]
+    assert again[0].rms == pytest.approx(first[0].rms, rel=1e-6)
+    assert (out / "seq_2" / "theta.csv").read_text().startswith("frame,timestamp")
+    redo = estimate_many(folders, out, "chain", {}, workers=1, redo=True)
+    assert [r.status for r in redo] == ["ok", "ok"]
+
+
+def test_the_command_line_runs_a_parent_folder(recordings: Path, tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "runs"
+    assert main(["estimate", str(recordings), "--method", "chain", "--out", str(out),
+                 "--workers", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "4 sequences" in text and "3 estimated" in text and "1 failed" in text
+    assert "seq_4" in text and (out / "summary.csv").is_file()
+    assert main(["estimate", str(recordings / "seq_1"), "--out", str(tmp_path / "one"),
+                 "--workers", "2"]) == 1
+    assert "--workers and --scheduler apply to several sequences only" in capsys.readouterr().err
+
+
+def test_one_sequence_never_imports_dask(tmp_path: Path) -> None:
+    code = ("import sys; from apcc_graph.cli import main; "
+            f"code = main(['estimate', {str(ROOT / 'data' / 'sequences' / 'planar_three')!r}, "
+            f"'--method', 'chain', '--out', {str(tmp_path / 'e')!r}]); "
+            "assert code == 0; assert 'distributed' not in sys.modules and "
+            "'dask' not in sys.modules, 'dask imported'")
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
