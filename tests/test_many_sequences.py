@@ -99,3 +99,40 @@ def test_one_sequence_never_imports_dask(tmp_path: Path) -> None:
             "assert code == 0; assert 'distributed' not in sys.modules and "
             "'dask' not in sys.modules, 'dask imported'")
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
+
+
+def test_a_worker_killed_mid_run_loses_no_sequence(recordings: Path, tmp_path: Path) -> None:
+    """Dask reruns the tasks of a lost worker: every sequence comes back once, complete."""
+    import os
+    import signal
+    import threading
+
+    distributed = pytest.importorskip("distributed")
+    folders = sequence_folders([recordings])[:3]
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        pids = list(client.run(os.getpid).values())
+        finished, killed_mid_run = threading.Event(), []
+
+        def kill_one() -> None:
+            # once the first sequence is under way on some worker
+            while not any(client.processing().values()):
+                threading.Event().wait(0.05)
+            threading.Event().wait(0.5)
+            killed_mid_run.append(not finished.is_set())
+            os.kill(pids[0], signal.SIGKILL)
+
+        killer = threading.Thread(target=kill_one)
+        killer.start()
+        runs = estimate_many(folders, tmp_path / "out", "batch", OPTIONS,
+                             scheduler=cluster.scheduler_address)
+        finished.set()
+        killer.join()
+    assert killed_mid_run == [True]
+    assert [r.status for r in runs] == ["ok", "ok", "ok"]
+    assert sorted(p.parent.name for p in (tmp_path / "out").glob(f"*/{DONE}")) == [
+        "seq_1", "seq_2", "seq_3"]
+    rows = (tmp_path / "out" / "summary.csv").read_text().splitlines()[1:]
+    assert sorted(row.split(",")[0].rsplit("/", 1)[-1] for row in rows) == [
+        "seq_1", "seq_2", "seq_3"]
