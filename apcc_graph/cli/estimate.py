@@ -74,10 +74,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 def _theta0_list(text: str) -> np.ndarray:
     """``--theta0-deg`` as radians, unchecked against a robot (each sequence's estimate checks
     it against its own)."""
-    try:
-        return np.radians([float(v) for v in text.split(",")])
-    except ValueError:
-        raise UserError(f"--theta0-deg {text!r}: expected comma-separated degrees") from None
+    return np.radians(degree_list(text, "--theta0-deg"))
 
 
 def _theta0(text: str | None, robot: Robot) -> np.ndarray | None:
