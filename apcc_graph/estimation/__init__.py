@@ -1,7 +1,8 @@
 """Estimators of the segment angles over a sequence (docs/estimation.md).
 
-- The one call behind ``apcc_graph.estimate`` (:mod:`~apcc_graph.estimation.methods`) and the
-  result every estimator returns (:mod:`~apcc_graph.estimation.result`).
+- The one call behind ``apcc_graph.estimate`` (:mod:`~apcc_graph.estimation.methods`), the
+  result every estimator returns (:mod:`~apcc_graph.estimation.result`) and many sequences at
+  once, in process or on Dask (:mod:`~apcc_graph.estimation.many`).
 - The paper's chain, frame by frame and segment by segment (:mod:`~apcc_graph.estimation.chain`).
 - Graph building shared by the batch and the smoothers: the options
   (:mod:`~apcc_graph.estimation.options`), the projection-model terms
