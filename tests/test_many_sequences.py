@@ -136,3 +136,14 @@ def test_a_worker_killed_mid_run_loses_no_sequence(recordings: Path, tmp_path: P
     rows = (tmp_path / "out" / "summary.csv").read_text().splitlines()[1:]
     assert sorted(row.split(",")[0].rsplit("/", 1)[-1] for row in rows) == [
         "seq_1", "seq_2", "seq_3"]
+
+
+def test_the_many_sequences_benchmark_compares_dask_with_the_serial_run(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("distributed")
+    assert main(["bench", "many", "--sequences", "3", "--frames", "20", "--method", "chain",
+                 "--workers", "2", "--robot", str(ROBOT)]) == 0
+    text = capsys.readouterr().out
+    assert "3 sequences x 20 frames, method chain" in text
+    assert "identical theta.csv files: yes; failed sequences: 0" in text
+    assert "local Dask cluster, 2 workers" in text and "target: at least 1.7x" in text

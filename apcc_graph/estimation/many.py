@@ -64,7 +64,10 @@ def output_folder(out_root: str | Path, sequence: str | Path) -> Path:
 def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
                  redo: bool = False) -> SequenceRun:
     """Load, estimate and write one sequence; never raises for a bad sequence (the error is
-    its status). Skips it when ``out`` already holds complete outputs, unless ``redo``."""
+    its status). Skips it when ``out`` already holds complete outputs, unless ``redo``.
+
+    ``options["theta0"] = "truth"`` starts each sequence at its ground-truth first frame: the
+    protocol of the benchmarks on simulated sequences, never for real recordings."""
     from apcc_graph.estimation.methods import estimate
     from apcc_graph.io import load_sequence
     from apcc_graph.io.estimates import save_estimate
@@ -75,6 +78,8 @@ def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
     start = time.perf_counter()
     try:
         seq = load_sequence(sequence)
+        if isinstance(options.get("theta0"), str) and options["theta0"] == "truth":
+            options = {**options, "theta0": None if seq.thetas is None else seq.thetas[0]}
         result = estimate(seq, method=method, **options)
         save_estimate(result, out)
         rms = () if seq.thetas is None else tuple(float(v) for v in result.rms(seq.thetas))
