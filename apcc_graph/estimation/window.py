@@ -19,9 +19,10 @@ inside the window.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, fields
-from typing import Any, Protocol
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -199,15 +200,7 @@ class Window:
         return [out[g] for g in sorted(out)]
 
 
-class Finishing(Protocol):
-    """A streaming estimator (:class:`StreamingSmoother`)."""
-
-    def update(self, observations: FrameObservations) -> SmootherFrame: ...
-
-    def finish(self) -> list[SmootherFrame]: ...
-
-
-class StreamingSmoother:
+class StreamingSmoother(ABC):
     """What both fixed-lag smoothers share: their :class:`Window`, the frame count, and the
     fields of their options record (``settings``) read as attributes (``smoother.lag``).
 
@@ -249,8 +242,14 @@ class StreamingSmoother:
         """
         return self._window.pop_final()
 
+    @abstractmethod
+    def update(self, observations: FrameObservations) -> SmootherFrame:
+        """Add one frame; returns that frame's estimate (only past frames seen)."""
+
+    @abstractmethod
     def finish(self) -> list[SmootherFrame]:
-        raise NotImplementedError
+        """Every frame's final estimate, in order (frames still in the window with their
+        current estimate)."""
 
     def __iter__(self) -> Iterator[SmootherFrame]:
         return iter(self.finish())
@@ -273,7 +272,7 @@ def observed_camera(robot: Robot, frame: int, cam: int) -> TipCamera:
     return camera
 
 
-def stream_estimate(smoother: Finishing, sequence: Sequence, progress: bool = False
+def stream_estimate(smoother: StreamingSmoother, sequence: Sequence, progress: bool = False
                     ) -> Estimate:
     """Feed a recorded sequence to ``smoother`` frame by frame; each frame's final estimate.
 
