@@ -15,8 +15,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from apcc_graph.estimation.many import estimate_many
 from apcc_graph.io import load_robot, save_sequence
 from apcc_graph.simulation.simulator import simulate
@@ -36,7 +34,6 @@ class ManyBenchmark:
     dask_seconds: float
     identical: bool
     failed: int
-    worst_rms: float  # radians, over every sequence and segment
 
     @property
     def speedup(self) -> float:
@@ -70,10 +67,9 @@ def run_many_benchmark(sequences: int = 16, frames: int = 600, method: str = "ba
                         == (root / "dask" / f.name / "theta.csv").read_bytes()
                         for f, run in zip(folders, serial, strict=True) if run.status == "ok")
     failed = sum(r.status.startswith("failed") for r in [*serial, *dask])
-    rms = [v for r in serial for v in r.rms]
     return ManyBenchmark(sequences, frames, method, workers, serial_seconds, dask_seconds,
                          identical and [r.status for r in serial] == [r.status for r in dask],
-                         failed, float(np.max(rms)) if rms else float("nan"))
+                         failed)
 
 
 def format_many_benchmark(r: ManyBenchmark) -> str:
@@ -84,7 +80,7 @@ def format_many_benchmark(r: ManyBenchmark) -> str:
         f"  {f'local Dask cluster, {r.workers} workers':<44} {r.dask_seconds:>8.1f} s "
         f"{r.speedup:>6.2f}x",
         f"identical theta.csv files: {'yes' if r.identical else 'NO'}; failed sequences: "
-        f"{r.failed}; worst RMS of any segment: {np.degrees(r.worst_rms):.3f} deg",
+        f"{r.failed}",
         f"target: at least 1.7x on 2 workers -> {r.speedup:.2f}x "
         f"({'met' if r.speedup >= 1.7 else 'NOT met'})",
     ])

@@ -107,7 +107,7 @@ class SmootherBenchmark:
     rss_large: float  # bytes, after memory_frames frames
 
 
-def _rss() -> float:
+def resident_set_size() -> float:
     """Current resident set size (bytes), from /proc; peak RSS where /proc is missing."""
     try:
         pages = int(Path("/proc/self/statm").read_text().split()[1])
@@ -224,8 +224,8 @@ def _memory(robot: Robot, frames: int, seed: int, progress: bool) -> tuple[float
         sm.update(seq.frame(f))
         sm.pop_final()
         if f + 1 == min(1000, frames):
-            rss_small = _rss()
-    return rss_small, _rss()
+            rss_small = resident_set_size()
+    return rss_small, resident_set_size()
 
 
 def run_smoother_benchmark(

@@ -11,11 +11,9 @@ from collections.abc import Sequence
 from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
-    at_least,
     frames_option,
     int_list,
     non_negative,
-    robot_option,
     seeds_option,
 )
 
@@ -24,7 +22,6 @@ EXAMPLES = {
     "--long-frames 0 --memory-frames 0 --methods chain,smoother",
     "selfcal": "apcc-graph bench selfcal --frames 600 --seeds 1,2,3",
     "images": "apcc-graph bench images --frames 150 --seeds 1,2,3,4,5",
-    "many": "apcc-graph bench many --sequences 16 --frames 600 --workers 2",
 }
 """Example commands per benchmark of this module."""
 
@@ -83,31 +80,6 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                      help="sensor noise, grey levels (default 2)")
     imb.add_argument("--texture", choices=("skimage", "procedural"), default="skimage")
     imb.set_defaults(run=run_images)
-    _add_many(benches)
-
-
-def _add_many(benches: argparse._SubParsersAction) -> None:
-    many = benches.add_parser(
-        "many", help="many sequences on a local Dask cluster vs one after the other",
-        description="Simulate sequences of the three-segment robot and estimate them all in "
-        "one process and on a local Dask cluster; wall times, their ratio and whether the "
-        "results are identical.",
-        epilog=f"example:\n  {EXAMPLES['many']}", formatter_class=FORMATTER,
-        parents=[frames_option(600, minimum=10), robot_option("data/robots/planar_three.toml")])
-    many.add_argument("--sequences", type=at_least(2), default=16, help="sequences (default 16)")
-    many.add_argument("--workers", type=at_least(2), default=2, help="Dask workers (default 2)")
-    many.add_argument("--method", choices=("chain", "batch", "smoother"), default="batch")
-    many.add_argument("--seed", type=int, default=1, help="first simulation seed (default 1)")
-    many.set_defaults(run=run_many)
-
-
-def run_many(args: argparse.Namespace) -> str:
-    """Run the many-sequences benchmark; return its table."""
-    from apcc_graph.bench.many import format_many_benchmark, run_many_benchmark
-
-    return format_many_benchmark(run_many_benchmark(
-        args.sequences, args.frames, args.method, args.workers, args.seed, args.robot,
-        progress=True))
 
 
 def run_smoother(args: argparse.Namespace) -> str:

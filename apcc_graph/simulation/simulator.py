@@ -18,9 +18,8 @@ import math
 from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass, field
 
-import gtsam
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from apcc_graph.model.arrays import FloatArray, IntArray
@@ -28,9 +27,15 @@ from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence, Tracks
+from apcc_graph.simulation.motion import (
+    MOTIONS,
+    base_motion,
+    bends_of,
+    given_bends,
+    smooth_signal,
+)
 from apcc_graph.simulation.planar_curves import growing_curvature_transform
 
-MOTIONS = ("smooth", "paper")
 SCENES = ("points", "room")
 NEAR = 0.05
 """Points closer than this in front of a camera (metres) are not seen."""
@@ -64,31 +69,11 @@ class Simulation:
     room_half_size: FloatArray = field(default_factory=lambda: np.ones(3))
 
 
-def _smooth_signal(rng: np.random.Generator, t: FloatArray, n: int,
-                   freq_range: tuple[float, float] = (0.05, 0.4)) -> FloatArray:
-    """``(F, n)`` smooth random signals in [-1, 1]: sums of three sinusoids per channel."""
-    freqs = rng.uniform(*freq_range, (3, n))
-    phases = rng.uniform(0.0, 2 * math.pi, (3, n))
-    weights = rng.uniform(0.5, 1.0, (3, n))
-    signal = np.einsum("kn,fkn->fn", weights,
-                       np.sin(2 * math.pi * freqs[None] * t[:, None, None] + phases[None]))
-    return signal / weights.sum(axis=0)
-
-
-def _paper_walk(rng: np.random.Generator, n_frames: int, limits: FloatArray,
-                max_step: float) -> FloatArray:
-    """Random steps ``|theta_b - theta_a| < max_step`` reflected into ``[-limit, limit]``."""
-    steps = rng.uniform(-max_step, max_step, (n_frames, len(limits)))
-    steps[0] = rng.uniform(-1.0, 1.0, len(limits)) * limits
-    walk = np.cumsum(steps, axis=0)
-    period = 4 * limits
-    folded = np.mod(walk + limits, period)  # reflect: a triangle wave of the unbounded walk
-    return np.where(folded < 2 * limits, folded - limits, 3 * limits - folded)
-
-
-def _scene(rng: np.random.Generator, scene: str, n_points: int, centre: FloatArray,
-           depth_range: tuple[float, float], room_half_size: tuple[float, float, float],
-           ) -> FloatArray:
+def scene_points(rng: np.random.Generator, scene: str, n_points: int, centre: FloatArray,
+                 depth_range: tuple[float, float], room_half_size: tuple[float, float, float],
+                 ) -> FloatArray:
+    """``(P, 3)`` static scene points (metres, world frame): the ``"points"`` shell or the
+    walls of the ``"room"`` box around ``centre`` (see :func:`simulate`)."""
     if scene == "points":
         directions = rng.normal(size=(n_points, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
@@ -165,29 +150,8 @@ def _check_options(
         raise ValueError("the robot has no camera: nothing to observe")
 
 
-def _bends(rng: np.random.Generator, robot: Robot, t: FloatArray, motion: str, amplitude: float,
-           max_step_deg: float, paper_range_deg: float) -> FloatArray:
-    """``(F, S)`` true bends of the smooth or the paper motion (see :func:`simulate`)."""
-    limits = np.array([seg.theta_max for seg in robot.segments])
-    if motion == "smooth":
-        return amplitude * limits * _smooth_signal(rng, t, robot.n_segments)
-    bound = np.minimum(math.radians(paper_range_deg), limits)
-    return _paper_walk(rng, len(t), bound, math.radians(max_step_deg))
-
-
-def _base_motion(rng: np.random.Generator, t: FloatArray, rotation_deg: float,
-                 translation: float) -> FloatArray:
-    """``(F, 4, 4)`` base poses: smooth rotations within ``rotation_deg`` about each axis and
-    translations of norm up to ``translation`` metres."""
-    rot = math.radians(rotation_deg) * _smooth_signal(rng, t, 3)
-    trans = _smooth_signal(rng, t, 3)
-    trans *= translation / float(np.max(np.linalg.norm(trans, axis=1)))
-    return np.stack([gtsam.Pose3(gtsam.Rot3.RzRyRx(*r), p).matrix()
-                     for r, p in zip(rot, trans, strict=True)])
-
-
-def _projections(points: FloatArray, camera: TipCamera, world_T_cam: FloatArray,
-                 progress: bool, label: str) -> tuple[FloatArray, NDArray[np.bool_]]:
+def projections(points: FloatArray, camera: TipCamera, world_T_cam: FloatArray,
+                progress: bool = False, label: str = "") -> tuple[FloatArray, NDArray[np.bool_]]:
     """``(F, P, 2)`` noise-free pixels of every scene point in every frame (``-1`` behind the
     camera) and ``(F, P)`` whether the point is in view."""
     n_frames = len(world_T_cam)
@@ -295,6 +259,7 @@ def simulate(
     truth_segments: SequenceOf[Segment] | None = None,
     curvature_growth: float = 0.0,
     decimals: int | None = None,
+    bends: ArrayLike | None = None,
     progress: bool = False,
 ) -> Simulation:
     """Simulate what the robot's tip cameras see, with the ground truth.
@@ -333,6 +298,10 @@ def simulate(
             APCC model.
         decimals: round the observed pixels to this many decimals (a tracker's precision; keeps
             saved files small); ``None`` keeps full precision.
+        bends: ``(F, S)`` true angles (radians) to use instead of the drawn motion (e.g. a
+            motion with a fault, :mod:`apcc_graph.simulation.faults`); the random draws stay
+            as without it, so the scene, the tracks' noise and outliers are those of the same
+            seed's undisturbed recording wherever the cameras see the same points.
         progress: show a progress bar.
 
     Returns:
@@ -347,19 +316,21 @@ def simulate(
                    truth_segments=truth_segments, decimals=decimals)
     rng = np.random.default_rng(seed)  # drawn in this order: motion, scene, then per camera
     t = np.arange(n_frames) / fps
-    thetas = _bends(rng, robot, t, motion, amplitude, max_step_deg, paper_range_deg)
-    psis = math.pi * _smooth_signal(rng, t, robot.n_segments, (0.02, 0.1)) if spatial else None
-    base = _base_motion(rng, t, base_rotation_deg, base_translation) if moving_base else None
+    thetas = bends_of(rng, robot, t, motion, amplitude, max_step_deg, paper_range_deg)
+    if bends is not None:
+        thetas = given_bends(robot, bends, n_frames)
+    psis = math.pi * smooth_signal(rng, t, robot.n_segments, (0.02, 0.1)) if spatial else None
+    base = base_motion(rng, t, base_rotation_deg, base_translation) if moving_base else None
     tips = _true_tips(robot, thetas, psis, base, truth_segments, curvature_growth)
     centre = np.array([0.0, 0.0, 0.5 * sum(seg.length for seg in robot.segments)])
-    points = _scene(rng, scene, n_points, centre, depth_range, room_half_size)
+    points = scene_points(rng, scene, n_points, centre, depth_range, room_half_size)
 
     cameras, world_T_cam = {}, {}
     for cam in robot.camera_segments:
         camera = robot.cameras[cam]
         assert camera is not None
         world_T_cam[cam] = tips[:, cam] @ camera.tip_T_cam
-        pixels, visible = _projections(points, camera, world_T_cam[cam], progress,
+        pixels, visible = projections(points, camera, world_T_cam[cam], progress,
                                        f"camera {cam + 1}")
         visible, ids = _tracks_of(rng, visible, blackout_fraction, track_lifetime)
         cameras[cam] = _observe(rng, camera, pixels, visible, ids, noise_px, outlier_fraction,
