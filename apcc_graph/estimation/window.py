@@ -72,7 +72,7 @@ def new_gtsam_smoother(lag: float, relinearize_threshold: float, relinearize_ski
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(relinearize_threshold)
     params.relinearizeSkip = relinearize_skip
-    params.findUnusedFactorSlots = False
+    params.findUnusedFactorSlots = True
     return gtsam.IncrementalFixedLagSmoother(lag, params)
 
 
