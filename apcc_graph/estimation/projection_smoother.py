@@ -53,6 +53,7 @@ from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions, smoother_settings
+from apcc_graph.estimation.start_check import check_start
 from apcc_graph.estimation.window import (
     SmootherFrame,
     StreamingSmoother,
@@ -62,6 +63,7 @@ from apcc_graph.estimation.window import (
     observed_camera,
     start_angles,
     stream_estimate,
+    warn_restart,
 )
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
@@ -104,6 +106,8 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         self.settings = s = smoother_settings(ProjectionSmootherOptions, settings, lag,
                                               keywords, name)
         self.theta0 = start_angles(name, robot, theta0)
+        self.start_contradicted = False
+        """Whether the first frame's images contradicted ``theta0`` (a warning said so)."""
         self.robot = robot
         self.options = o = GraphOptions() if options is None else options
         if o.vision != "projection":
@@ -275,7 +279,8 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         stamps = key_stamps([(frame_key(f), t), *new_stamps.items()])
         try:
             self._smoother.update(graph, values, stamps, self._live_indices)
-        except (RuntimeError, IndexError):
+        except (RuntimeError, IndexError) as error:
+            warn_restart(f, t, error)
             self._restart(f, t, thetas)
             return
         indices = self._smoother.getISAM2Result().getNewFactorsIndices()
@@ -314,6 +319,11 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
     def _retire(self, leaving: list[int]) -> None:
         """Record the final estimate of frames that the coming update marginalises."""
         self._landmarks.retire(leaving)
+        if 0 in leaving and self._window.status[0][0] == "initial":
+            self.start_contradicted = check_start(
+                self.theta0, self.options.theta0_sigma, self._window.thetas[0],
+                lambda: self._smoother.marginalCovariance(frame_key(0)),
+                self._window.last_time or 0.0)
         for g in sorted(leaving):
             self._window.leave(g, self._window.thetas[g].copy(), self._sigmas(g))
             self._tracks.bases.pop(g, None)

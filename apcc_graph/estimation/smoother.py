@@ -57,6 +57,7 @@ from apcc_graph.estimation.window import (
     key_stamps,
     start_angles,
     stream_estimate,
+    warn_restart,
 )
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
@@ -253,11 +254,12 @@ class FixedLagSmoother(StreamingSmoother):
         try:
             self._smoother.update(graph, values, stamps, remove or [])
             self._linear.register(pending)
-        except IndexError:
+        except IndexError as error:
             # gtsam's marginalisation helper lost track of a variable's clique (known
             # IncrementalFixedLagSmoother failures): the state cannot be trusted, start afresh.
             self._window.recoveries += 1
             status[:] = "recovered"
+            warn_restart(f, self._window.times.get(f, math.nan), error)
             self._restart(f, thetas)
         except RuntimeError:
             self._window.recoveries += 1
@@ -269,7 +271,8 @@ class FixedLagSmoother(StreamingSmoother):
                                        self.settings.loose_sigma))
             try:
                 self._smoother.update(repair, gtsam.Values(), key_stamps())
-            except (RuntimeError, IndexError):
+            except (RuntimeError, IndexError) as error:
+                warn_restart(f, self._window.times.get(f, math.nan), error)
                 self._restart(f, thetas)
         self._read_window()
 

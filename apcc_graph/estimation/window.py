@@ -19,6 +19,7 @@ inside the window.
 from __future__ import annotations
 
 import math
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, fields
@@ -35,6 +36,22 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations, Sequence
+
+
+class RestartWarning(UserWarning):
+    """gtsam failed on a smoother's window (typically an indeterminate system: the data no
+    longer determine some variable) and the smoother started afresh from its last estimate:
+    what the window knew is lost, and the estimates may be off until the images pull them
+    back. The message names the frame."""
+
+
+def warn_restart(frame: int, timestamp: float, error: BaseException | None) -> None:
+    """Say that a smoother restarted at ``frame`` (see :class:`RestartWarning`)."""
+    cause = "" if error is None else " ".join(str(error).split())[:90]
+    warnings.warn(f"frame {frame} ({timestamp:.3f} s): gtsam failed on the window "
+                  f"({cause or 'no message'}); the smoother restarted from its last estimate "
+                  "with a loose prior, so the angles may be off until the images pull them "
+                  "back", RestartWarning, stacklevel=4)
 
 
 @dataclass(frozen=True)

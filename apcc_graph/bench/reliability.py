@@ -1,0 +1,163 @@
+"""``apcc-graph bench reliability``: the default smoother under faults, one row per fault.
+
+Scenario: the three-segment robot, the room scene, 1 px noise, 10% outliers, 30 fps,
+``frames`` frames; the fault starts at ``frames / 3``. Each fault is injected into the same
+seed's recording (:mod:`apcc_graph.simulation.faults`), so the undisturbed run is its peer.
+Every row gives:
+
+- what the estimator did: its warnings and the statuses of the faulty frames;
+- the RMS error per segment beside the Cramer-Rao bound of the faulted recording itself (every
+  observation once, each track's point a nuisance; frames no camera saw have no bound, and the
+  bound counts the images only, so the smoother's motion prior can beat it);
+- recovery: frames after the fault ends until the 10-frame moving RMS is back within 2x the
+  undisturbed run's error over the same frames, for good (target: 30;
+  :func:`~apcc_graph.evaluation.recovery.recovery_frames`);
+- sigma honesty: the mean of ``(error / sigma)^2`` (1 when honest) and the share of errors
+  within 3 sigma, worst segment.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+from tqdm import tqdm
+
+from apcc_graph.bench.smoother import FPS, N_POINTS, NOISE_PX, ROBOT_FILE, THETA0_SIGMA
+from apcc_graph.estimation.methods import estimate
+from apcc_graph.evaluation.recovery import recovery_frames, sigma_honesty
+from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.arrays import FloatArray, rms
+from apcc_graph.model.robot import Robot
+from apcc_graph.simulation import faults
+from apcc_graph.simulation.simulator import Simulation, simulate
+
+OUTLIERS = 0.1
+SECOND = int(FPS)
+
+
+@dataclass(frozen=True)
+class FaultCase:
+    """A recording with a fault: the simulation, the start given to the estimator, and the
+    faulty frames ``start .. stop - 1`` (recovery is counted from ``stop``)."""
+
+    name: str
+    simulation: Simulation
+    theta0: FloatArray
+    start: int
+    stop: int
+
+
+def _simulate(robot: Robot, frames: int, seed: int, bends: FloatArray | None = None
+              ) -> Simulation:
+    return simulate(robot, frames, noise_px=NOISE_PX, outlier_fraction=OUTLIERS, seed=seed,
+                    fps=FPS, scene="room", n_points=N_POINTS, bends=bends)
+
+
+def fault_cases(frames: int = 450, seed: int = 1) -> list[FaultCase]:
+    """The undisturbed recording and every fault of the benchmark, in table order."""
+    robot = load_robot(ROBOT_FILE)
+    clean = _simulate(robot, frames, seed)
+    truth = clean.sequence.thetas
+    assert truth is not None
+    at = frames // 3
+    hold = min(5 * SECOND, frames - at - SECOND)
+    theta_max = robot.segments[1].theta_max
+    made: list[tuple[str, Callable[[], Simulation], int, int]] = [
+        ("none", lambda: clean, at, at),
+        ("camera 2 blind for 1 s", lambda: faults.blind(clean, [1], at, at + SECOND),
+         at, at + SECOND),
+        ("all cameras blind for 1 s", lambda: faults.blind(clean, [0, 1, 2], at, at + SECOND),
+         at, at + SECOND),
+        ("camera 2 never sees anything", lambda: faults.without_camera(clean, 1), 0, 0),
+        (f"robot frozen for {hold / FPS:.0f} s", lambda: _simulate(
+            robot, frames, seed, faults.frozen_bends(truth, at, hold)), at, at + hold),
+        ("segment 2 jumps 10 deg in one frame", lambda: _simulate(
+            robot, frames, seed, faults.jumped_bends(truth, at, 1, 10.0, theta_max)), at, at),
+        ("camera 2: ids swapped for 10 frames", lambda: faults.swapped_ids(
+            clean, 1, at, at + 10, 0.2, seed), at, at + 10),
+        ("camera 2: 50% outliers for 1 s", lambda: faults.outlier_burst(
+            clean, 1, at, at + SECOND, 0.5, seed), at, at + SECOND),
+    ]
+    cases = [FaultCase(name, make(), truth[0], a, b) for name, make, a, b in made]
+    return [*cases, FaultCase("start 5 deg off", clean, truth[0] + math.radians(5.0), 0, 0)]
+
+
+@dataclass(frozen=True)
+class FaultRun:
+    """One row of the benchmark (angles in radians)."""
+
+    name: str
+    did: str
+    rms: FloatArray  # (S,)
+    bound: FloatArray  # (S,) RMS of the per-frame bound over the frames a camera saw
+    recovery: int | None
+    z2: float  # worst segment's mean (error / sigma)^2
+    within_3_sigma: float  # worst segment's share of errors within 3 sigma
+    warnings: tuple[str, ...] = ()  # "Category: message" of each warning the run gave
+
+
+def run_case(case: FaultCase, undisturbed: FloatArray | None = None) -> tuple[FaultRun,
+                                                                              FloatArray]:
+    """Run the default smoother on one case; the row and the ``(F, S)`` errors.
+
+    ``undisturbed``: the errors of the undisturbed run, for the recovery time."""
+    seq = case.simulation.sequence
+    assert seq.thetas is not None
+    with warnings.catch_warnings(record=True) as caught, \
+            threadpool_limits(limits=1, user_api="blas"):
+        warnings.simplefilter("always")
+        result = estimate(seq, method="smoother", theta0=case.theta0,
+                          theta0_sigma=THETA0_SIGMA, threshold_px=NOISE_PX, progress=False)
+    errors = result.errors(seq.thetas)
+    sigmas = sequence_bound(case.simulation, NOISE_PX, THETA0_SIGMA).sigmas
+    seen = np.all(np.isfinite(sigmas), axis=1)
+    z2, inside = sigma_honesty(errors, result.sigmas)
+    recovery = None if undisturbed is None else recovery_frames(errors, undisturbed, case.stop)
+    said = tuple(f"{w.category.__name__}: {w.message}" for w in caught)
+    return FaultRun(case.name, _what_it_did(caught, result.status[case.start:case.stop]),
+                    rms(errors), rms(sigmas[seen]), recovery, float(np.nanmax(z2)),
+                    float(np.nanmin(inside)), said), errors
+
+
+def _what_it_did(caught: list[warnings.WarningMessage], status: np.ndarray) -> str:
+    """The warnings (first words) and the statuses of the faulty frames."""
+    said = [" ".join(str(w.message).split()[:8]) + " ..." for w in caught]
+    kinds, counts = np.unique(status, return_counts=True)
+    shown = ", ".join(f"{k} x{c}" for k, c in zip(kinds.tolist(), counts.tolist(), strict=True)
+                      if k != "ok")
+    return "; ".join([*(f"warned: {s}" for s in said), *([shown] if shown else [])]) or "-"
+
+
+def run_reliability(frames: int = 450, seed: int = 1, progress: bool = False
+                    ) -> list[FaultRun]:
+    """Every row of the benchmark; the first is the undisturbed run."""
+    cases = fault_cases(frames, seed)
+    first, clean_errors = run_case(cases[0])
+    rows = [first]
+    for case in tqdm(cases[1:], desc="faults", disable=not progress):
+        rows.append(run_case(case, clean_errors)[0])
+    return rows
+
+
+def format_reliability(rows: list[FaultRun], frames: int) -> str:
+    """The benchmark's table."""
+    deg = np.degrees
+    out = [f"reliability: the default smoother (lag 1 s), {frames} frames, fault from frame "
+           f"{frames // 3}; RMS and its Cramer-Rao bound per segment (deg)", "",
+           f"{'fault':<38} {'RMS':>20} {'bound':>20} {'recovery':>9} {'(e/s)^2':>8} "
+           f"{'<3 sigma':>8}  what the estimator did"]
+    for r in rows:
+        rec = "-" if r.name == "none" else ("never" if r.recovery is None else
+                                            f"{r.recovery} fr")
+        out.append(f"{r.name:<38} {' '.join(f'{v:6.3f}' for v in deg(r.rms)):>20} "
+                   f"{' '.join(f'{v:6.3f}' for v in deg(r.bound)):>20} {rec:>9} "
+                   f"{r.z2:8.2f} {r.within_3_sigma:8.1%}  {r.did}")
+    out += ["", "recovery: frames after the fault ends until the 10-frame moving RMS stays "
+            "within 2x the undisturbed run's (target 30); (e/s)^2 and <3 sigma: worst segment"]
+    return "\n".join(out)

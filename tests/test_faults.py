@@ -1,0 +1,114 @@
+"""The default smoother under faults: each fault of ``apcc-graph bench reliability``, shortened
+(210 frames, the fault from frame 70). Each must recover within 30 frames to within 2x the
+undisturbed error, or say that it cannot; sigmas must cover the errors where it claims them.
+
+Three faults are known failures today and marked so, with what was measured: the smoother does
+not get the absolute angles back after every camera went blind, nor after the robot stood
+still for longer than the lag, and after one camera's blindness its segment keeps an offset.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from apcc_graph.bench.reliability import FaultCase, FaultRun, fault_cases, run_case
+from apcc_graph.estimation.methods import ObservationWarning
+from apcc_graph.estimation.start_check import StartWarning, start_chi2
+
+FRAMES = 210
+
+
+@pytest.fixture(scope="module")
+def cases() -> dict[str, FaultCase]:
+    return {case.name: case for case in fault_cases(FRAMES, seed=1)}
+
+
+@pytest.fixture(scope="module")
+def undisturbed(cases: dict[str, FaultCase]) -> tuple[FaultRun, np.ndarray]:
+    return run_case(cases["none"])
+
+
+def _run(cases: dict[str, FaultCase], undisturbed: tuple[FaultRun, np.ndarray], name: str
+         ) -> tuple[FaultRun, tuple[str, ...]]:
+    """The row and the warnings the run gave (``"Category: message"``)."""
+    row, _ = run_case(cases[name], undisturbed[1])
+    return row, row.warnings
+
+
+def test_the_undisturbed_run_is_near_its_bound_with_honest_sigmas(
+        undisturbed: tuple[FaultRun, np.ndarray]) -> None:
+    row = undisturbed[0]
+    assert np.all(row.rms < 2.0 * row.bound), (np.degrees(row.rms), np.degrees(row.bound))
+    assert row.z2 < 3.0 and row.within_3_sigma > 0.95
+
+
+@pytest.mark.parametrize("name", ["segment 2 jumps 10 deg in one frame",
+                                  "camera 2: ids swapped for 10 frames",
+                                  "camera 2: 50% outliers for 1 s"])
+def test_recovers_within_30_frames(cases: dict[str, FaultCase],
+                                   undisturbed: tuple[FaultRun, np.ndarray], name: str) -> None:
+    row, _ = _run(cases, undisturbed, name)
+    assert row.recovery is not None and row.recovery <= 30, row
+    assert row.z2 < 3.0, row  # and its sigmas stay honest through the fault
+
+
+def test_a_camera_that_never_sees_is_estimated_from_the_next_one_and_said(
+        cases: dict[str, FaultCase], undisturbed: tuple[FaultRun, np.ndarray]) -> None:
+    row, caught = _run(cases, undisturbed, "camera 2 never sees anything")
+    assert any(w.startswith(ObservationWarning.__name__) and "cam_2" in w for w in caught)
+    # camera 3 carries segment 2: near the bound of that recording, with sigmas that cover it
+    assert row.rms[1] < 2.0 * row.bound[1], (np.degrees(row.rms), np.degrees(row.bound))
+    assert row.z2 < 3.0 and row.within_3_sigma > 0.95, row
+
+
+def test_a_start_that_contradicts_the_images_is_said(
+        cases: dict[str, FaultCase], undisturbed: tuple[FaultRun, np.ndarray]) -> None:
+    row, caught = _run(cases, undisturbed, "start 5 deg off")
+    said = [w for w in caught if w.startswith(StartWarning.__name__)]
+    assert len(said) == 1 and "contradicts the images" in said[0]
+    # and a start that agrees is not flagged (the undisturbed run used the true start)
+    assert not any(w.startswith(StartWarning.__name__) for w in undisturbed[0].warnings)
+
+
+def test_the_start_statistic() -> None:
+    sigma0, cov = math.radians(0.1), np.diag([0.5, 0.9, 0.99]) * math.radians(0.1) ** 2
+    theta0 = np.zeros(3)
+    # the images explain 50%, 10%, 1% of the prior's variance: a move of the size their
+    # share predicts is one sigma each, so chi2 = 3
+    moved = np.sqrt([0.5, 0.1, 0.01]) * sigma0
+    assert start_chi2(theta0, sigma0, moved, cov) == pytest.approx(3.0)
+    assert math.isnan(start_chi2(theta0, sigma0, moved, np.eye(3) * sigma0**2))
+
+
+@pytest.mark.xfail(strict=False, reason="measured (300 frames): RMS 5.1 / 1.9 / 1.3 deg "
+                   "against a bound of 0.44 / 0.11 / 0.08 after all cameras went blind for 1 s; "
+                   "new tracks give the motion back but not the absolute angles the blackout "
+                   "lost, and the sigmas claim too much ((e/s)^2 4.4)")
+def test_all_cameras_blind_for_a_second(cases: dict[str, FaultCase],
+                                        undisturbed: tuple[FaultRun, np.ndarray]) -> None:
+    row, _ = _run(cases, undisturbed, "all cameras blind for 1 s")
+    assert row.recovery is not None and row.recovery <= 30, row
+
+
+@pytest.mark.xfail(strict=False, reason="recovers on these 210 frames, but not in the "
+                   "benchmark's 300-frame run: segment 2 kept an offset after camera 2's tracks "
+                   "returned (RMS 0.16 deg, 3.7x the undisturbed run; bound 0.13 over the "
+                   "recording)")
+def test_one_camera_blind_for_a_second(cases: dict[str, FaultCase],
+                                       undisturbed: tuple[FaultRun, np.ndarray]) -> None:
+    row, _ = _run(cases, undisturbed, "camera 2 blind for 1 s")
+    assert row.recovery is not None and row.recovery <= 30, row
+
+
+@pytest.mark.xfail(strict=False, reason="measured (300 frames, 5 s): RMS 1.7-10 deg when the "
+                   "robot moves again after standing still longer than the lag; tracks without "
+                   "parallax leave the window ill-conditioned, and the run is not even "
+                   "repeatable (ulp-level differences grow into degrees)")
+def test_robot_frozen_longer_than_the_lag(cases: dict[str, FaultCase],
+                                          undisturbed: tuple[FaultRun, np.ndarray]) -> None:
+    name = next(n for n in cases if n.startswith("robot frozen"))
+    row, _ = _run(cases, undisturbed, name)
+    assert row.recovery is not None and row.recovery <= 30, row
