@@ -7,7 +7,7 @@ streaming user's loop takes finished frames out with ``pop_final`` after every u
 
 Measured in the same run:
 
-- resident set size at every checkpoint (every ``frames / 10`` frames), against the target:
+- resident set size at every checkpoint (every ``frames / 20`` frames; printed as the run goes), against the target:
   within 10% of the size after 10,000 frames at the end;
 - the update time per frame, wall clock and CPU time of the calling thread (the CPU time is not
   inflated by other processes on the machine), median per block, against the target: the median
@@ -100,7 +100,7 @@ def run_soak(frames: int = 100_000, seed: int = 1, bound: bool = True,
     stream = SimulatedStream(robot, NOISE_PX, OUTLIERS, seed, fps=FPS, n_points=N_POINTS)
     smoother = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=stream.thetas(0),
                                           uncertainty=False)
-    step = max(frames // 10, 1)
+    step = max(frames // 20, 1)
     checkpoints = np.unique([*range(step, frames + 1, step), frames])
     wall, cpu = np.empty(frames), np.empty(frames)
     rss, block_rms = np.empty(len(checkpoints)), np.empty((len(checkpoints), robot.n_segments))
@@ -118,6 +118,12 @@ def run_soak(frames: int = 100_000, seed: int = 1, bound: bool = True,
             rss_reference = resident_set_size()
         if f + 1 == checkpoints[c]:
             rss[c], block_rms[c] = resident_set_size(), np.sqrt(sq / max(n, 1))
+            if progress:  # a long run shows its figures as it goes
+                block = slice(0 if c == 0 else checkpoints[c - 1], f + 1)
+                tqdm.write(f"  {f + 1:>7,} frames: RSS {rss[c] / 1024**2:.1f} MB, median "
+                           f"update {1e3 * np.median(wall[block]):.1f} ms (CPU "
+                           f"{1e3 * np.median(cpu[block]):.1f} ms), RMS "
+                           + " ".join(f"{v:.3f}" for v in np.degrees(block_rms[c])) + " deg")
             sq, n, c = np.zeros(robot.n_segments), 0, c + 1
     limit.restore_original_limits()
     sigma = reference_bound(seed) if bound else np.full(robot.n_segments, np.nan)
