@@ -7,8 +7,8 @@ streaming user's loop takes finished frames out with ``pop_final`` after every u
 
 Measured in the same run:
 
-- resident set size at every checkpoint (every ``frames / 20`` frames; printed as the run goes), against the target:
-  within 10% of the size after 10,000 frames at the end;
+- resident set size at every checkpoint (every ``frames / 20`` frames; printed as the run
+  goes), against the target: within 10% of the size after 10,000 frames at the end;
 - the update time per frame, wall clock and CPU time of the calling thread (the CPU time is not
   inflated by other processes on the machine), median per block, against the target: the median
   over the last 1,000 frames within 1.2x of frames 1,000-2,000;
