@@ -74,7 +74,7 @@ def fault_cases(frames: int = 450, seed: int = 1) -> list[FaultCase]:
          at, at + SECOND),
         ("all cameras blind for 1 s", lambda: faults.blind(clean, [0, 1, 2], at, at + SECOND),
          at, at + SECOND),
-        ("camera 2 never sees anything", lambda: faults.without_camera(clean, 1), 0, 0),
+        ("camera 2 never sees anything", lambda: faults.without_camera(clean, 1), 0, frames),
         (f"robot frozen for {hold / FPS:.0f} s", lambda: _simulate(
             robot, frames, seed, faults.frozen_bends(truth, at, hold)), at, at + hold),
         ("segment 2 jumps 10 deg in one frame", lambda: _simulate(
@@ -100,6 +100,7 @@ class FaultRun:
     z2: float  # worst segment's mean (error / sigma)^2
     within_3_sigma: float  # worst segment's share of errors within 3 sigma
     warnings: tuple[str, ...] = ()  # "Category: message" of each warning the run gave
+    ends: bool = True  # the fault ends before the recording does (else no recovery to count)
 
 
 def run_case(case: FaultCase, undisturbed: FloatArray | None = None) -> tuple[FaultRun,
@@ -118,11 +119,12 @@ def run_case(case: FaultCase, undisturbed: FloatArray | None = None) -> tuple[Fa
     sigmas = sequence_bound(case.simulation, NOISE_PX, THETA0_SIGMA).sigmas
     seen = np.all(np.isfinite(sigmas), axis=1)
     z2, inside = sigma_honesty(errors, result.sigmas)
-    recovery = None if undisturbed is None else recovery_frames(errors, undisturbed, case.stop)
+    ends = undisturbed is not None and case.stop < seq.n_frames
+    recovery = recovery_frames(errors, undisturbed, case.stop) if ends else None
     said = tuple(f"{w.category.__name__}: {w.message}" for w in caught)
     return FaultRun(case.name, _what_it_did(caught, result.status[case.start:case.stop]),
                     rms(errors), rms(sigmas[seen]), recovery, float(np.nanmax(z2)),
-                    float(np.nanmin(inside)), said), errors
+                    float(np.nanmin(inside)), said, ends), errors
 
 
 def _what_it_did(caught: list[warnings.WarningMessage], status: np.ndarray) -> str:
@@ -153,8 +155,8 @@ def format_reliability(rows: list[FaultRun], frames: int) -> str:
            f"{'fault':<38} {'RMS':>20} {'bound':>20} {'recovery':>9} {'(e/s)^2':>8} "
            f"{'<3 sigma':>8}  what the estimator did"]
     for r in rows:
-        rec = "-" if r.name == "none" else ("never" if r.recovery is None else
-                                            f"{r.recovery} fr")
+        rec = "-" if r.name == "none" or not r.ends else (
+            "never" if r.recovery is None else f"{r.recovery} fr")
         out.append(f"{r.name:<38} {' '.join(f'{v:6.3f}' for v in deg(r.rms)):>20} "
                    f"{' '.join(f'{v:6.3f}' for v in deg(r.bound)):>20} {rec:>9} "
                    f"{r.z2:8.2f} {r.within_3_sigma:8.1%}  {r.did}")
