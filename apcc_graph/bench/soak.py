@@ -106,26 +106,28 @@ def run_soak(frames: int = 100_000, seed: int = 1, bound: bool = True,
     rss, block_rms = np.empty(len(checkpoints)), np.empty((len(checkpoints), robot.n_segments))
     sq, n, truth, rss_reference, c = np.zeros(robot.n_segments), 0, {}, float("nan"), 0
     limit = threadpool_limits(limits=1, user_api="blas")
-    for f in tqdm(range(frames), desc="soak", disable=not progress, mininterval=1.0):
-        observations, truth[f] = stream.next_frame()
-        start, start_cpu = time.perf_counter(), time.thread_time()
-        smoother.update(observations)
-        cpu[f], wall[f] = time.thread_time() - start_cpu, time.perf_counter() - start
-        for done in smoother.pop_final():
-            sq += (done.thetas - truth.pop(done.frame)) ** 2
-            n += 1
-        if f + 1 == MEMORY_REFERENCE:
-            rss_reference = resident_set_size()
-        if f + 1 == checkpoints[c]:
-            rss[c], block_rms[c] = resident_set_size(), np.sqrt(sq / max(n, 1))
-            if progress:  # a long run shows its figures as it goes
-                block = slice(0 if c == 0 else checkpoints[c - 1], f + 1)
-                tqdm.write(f"  {f + 1:>7,} frames: RSS {rss[c] / 1024**2:.1f} MB, median "
-                           f"update {1e3 * np.median(wall[block]):.1f} ms (CPU "
-                           f"{1e3 * np.median(cpu[block]):.1f} ms), RMS "
-                           + " ".join(f"{v:.3f}" for v in np.degrees(block_rms[c])) + " deg")
-            sq, n, c = np.zeros(robot.n_segments), 0, c + 1
-    limit.restore_original_limits()
+    try:
+        for f in tqdm(range(frames), desc="soak", disable=not progress, mininterval=1.0):
+            observations, truth[f] = stream.next_frame()
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            smoother.update(observations)
+            cpu[f], wall[f] = time.thread_time() - start_cpu, time.perf_counter() - start
+            for done in smoother.pop_final():
+                sq += (done.thetas - truth.pop(done.frame)) ** 2
+                n += 1
+            if f + 1 == MEMORY_REFERENCE:
+                rss_reference = resident_set_size()
+            if f + 1 == checkpoints[c]:
+                rss[c], block_rms[c] = resident_set_size(), np.sqrt(sq / max(n, 1))
+                if progress:  # a long run shows its figures as it goes
+                    block = slice(0 if c == 0 else checkpoints[c - 1], f + 1)
+                    tqdm.write(f"  {f + 1:>7,} frames: RSS {rss[c] / 1024**2:.1f} MB, median "
+                               f"update {1e3 * np.median(wall[block]):.1f} ms (CPU "
+                               f"{1e3 * np.median(cpu[block]):.1f} ms), RMS "
+                               + " ".join(f"{v:.3f}" for v in np.degrees(block_rms[c])) + " deg")
+                sq, n, c = np.zeros(robot.n_segments), 0, c + 1
+    finally:
+        limit.restore_original_limits()
     sigma = reference_bound(seed) if bound else np.full(robot.n_segments, np.nan)
     return SoakBenchmark(frames, checkpoints, rss, wall, cpu, block_rms, sigma,
                          rss_reference, smoother.recoveries)
