@@ -89,3 +89,14 @@ def test_module_paths_named_in_the_documents_exist() -> None:
             if not (ROOT / path).exists():
                 missing.append(f"{doc.relative_to(ROOT)}: {path}")
     assert missing == []
+
+
+def test_the_benches_robot_ships_with_the_package() -> None:
+    """The benches load their robot from the package (they run from any folder after a
+    non-editable install): the same file as the repository's, and declared as package data."""
+    from apcc_graph.bench import ROBOT_FILE
+
+    assert ROBOT_FILE.read_bytes() == (ROOT / "data" / "robots" / "planar_three.toml").read_bytes()
+    assert ROBOT_FILE.parent == ROOT / "apcc_graph" / "bench"
+    pyproject = (ROOT / "pyproject.toml").read_text()
+    assert '"apcc_graph.bench" = ["*.toml"]' in pyproject

@@ -9,6 +9,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from pathlib import Path
+
+ROBOT_FILE = Path(__file__).resolve().parent / "planar_three.toml"
+"""The benches' three-segment robot, shipped with the package (the same file as
+``data/robots/planar_three.toml`` of the repository), so that the benches run from any folder."""
 
 
 def best_time(fn: Callable[[], object], repeats: int) -> float:

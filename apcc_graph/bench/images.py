@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 import apcc_graph
+from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.frontend.tracking import track_images
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.robot import Robot
@@ -31,7 +31,6 @@ from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.render import SensorModel, render_images, textured_room
 from apcc_graph.simulation.simulator import simulate
 
-ROBOT = Path(__file__).resolve().parents[2] / "data" / "robots" / "planar_three.toml"
 METHODS = ("smoother", "chain")
 RATIO_TARGET = 1.5
 RMS_TARGET_DEG = 1.0
@@ -56,7 +55,7 @@ def run_images_benchmark(frames: int = 150, seeds: tuple[int, ...] = (1, 2, 3, 4
     """Run the end-to-end comparison for each seed (see the module docstring)."""
     from tqdm import tqdm
 
-    robot = load_robot(ROBOT) if robot is None else robot
+    robot = load_robot(ROBOT_FILE) if robot is None else robot
     runs = []
     for seed in tqdm(seeds, desc="seeds", disable=not progress):
         sim = simulate(robot, frames, noise_px=1.0, seed=seed, scene="room")

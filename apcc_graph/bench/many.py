@@ -15,11 +15,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.estimation.many import estimate_many
 from apcc_graph.io import load_robot, save_sequence
 from apcc_graph.simulation.simulator import simulate
-
-ROBOT = "data/robots/planar_three.toml"
 
 
 @dataclass(frozen=True)
@@ -42,7 +41,7 @@ class ManyBenchmark:
 
 
 def run_many_benchmark(sequences: int = 16, frames: int = 600, method: str = "batch",
-                       workers: int = 2, seed: int = 1, robot: str | Path = ROBOT,
+                       workers: int = 2, seed: int = 1, robot: str | Path = ROBOT_FILE,
                        progress: bool = False) -> ManyBenchmark:
     """Time ``sequences`` recordings of ``frames`` frames serially and on ``workers`` Dask
     workers (see the module docstring)."""

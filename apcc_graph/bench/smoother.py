@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.options import GraphOptions
@@ -49,7 +50,6 @@ from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.simulator import Simulation, simulate
 
-ROBOT_FILE = Path(__file__).resolve().parents[2] / "data" / "robots" / "planar_three.toml"
 FPS = 30.0
 LAG = 1.0
 N_POINTS = 4000

@@ -13,9 +13,9 @@ from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
     at_least,
+    bench_robot_option,
     deg,
     frames_option,
-    robot_option,
     seed_option,
 )
 
@@ -28,9 +28,6 @@ EXAMPLES = {
     "tracking": "apcc-graph bench tracking --frames 200",
 }
 """One example command per benchmark of this module."""
-
-DEFAULT_ROBOT = "data/robots/planar_three.toml"
-"""The robot of ``kinematics`` and ``sequences``: the repository's three-segment planar robot."""
 
 
 def _bench(benches: argparse._SubParsersAction, name: str,
@@ -48,7 +45,7 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                  help="vectorised forward kinematics vs a matmul chain and a gtsam loop",
                  description="Time Robot.forward over many frames, and its peers on the same "
                  "angles.",
-                 parents=[robot_option(DEFAULT_ROBOT),
+                 parents=[bench_robot_option(),
                           frames_option(1_000_000, minimum=None, help="frames (default 10^6)")])
     kin.add_argument("--repeats", type=int, default=3, help="timing repeats, best kept")
     kin.set_defaults(run=run_kinematics)
@@ -57,7 +54,7 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                   help="simulate, save and load sequences; load vs loadtxt and csv peers",
                   description="Time the simulator (3 x 1000 frames x ~200 tracks) and loading "
                   "about a million track rows, with numpy.loadtxt and the csv module as peers.",
-                  parents=[robot_option(DEFAULT_ROBOT), frames_option(1000, minimum=2)])
+                  parents=[bench_robot_option(), frames_option(1000, minimum=2)])
     seqb.add_argument("--rows", type=at_least(1), default=1_000_000,
                       help="track rows for the load test (default 10^6)")
     seqb.add_argument("--repeats", type=at_least(1), default=3)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from apcc_graph.cli.common import FORMATTER, at_least, frames_option, robot_option
+from apcc_graph.cli.common import FORMATTER, at_least, bench_robot_option, frames_option
 
 EXAMPLES = {
     "many": "apcc-graph bench many --sequences 16 --frames 600 --workers 2",
@@ -50,7 +50,7 @@ def _add_many(benches: argparse._SubParsersAction) -> None:
         "one process and on a local Dask cluster; wall times, their ratio and whether the "
         "results are identical.",
         epilog=f"example:\n  {EXAMPLES['many']}", formatter_class=FORMATTER,
-        parents=[frames_option(600, minimum=10), robot_option("data/robots/planar_three.toml")])
+        parents=[frames_option(600, minimum=10), bench_robot_option()])
     many.add_argument("--sequences", type=at_least(2), default=16, help="sequences (default 16)")
     many.add_argument("--workers", type=at_least(2), default=2, help="Dask workers (default 2)")
     many.add_argument("--method", choices=("chain", "batch", "smoother"), default="batch")

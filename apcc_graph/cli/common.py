@@ -94,12 +94,23 @@ def force_option(help: str) -> argparse.ArgumentParser:  # noqa: A002
     return parent
 
 
-def robot_option(default: str | None = None) -> argparse.ArgumentParser:
-    """Parent parser of ``--robot``: a robot.toml file, required unless ``default`` is given."""
+def robot_option(default: str | None = None, shown: str | None = None
+                 ) -> argparse.ArgumentParser:
+    """Parent parser of ``--robot``: a robot.toml file, required unless ``default`` is given
+    (``shown``: how the help names the default, if not by its path)."""
     parent = argparse.ArgumentParser(add_help=False)
+    told = "" if default is None else f" (default: {shown or '%(default)s'})"
     parent.add_argument("--robot", required=default is None, default=default,
-                        help="robot.toml" + ("" if default is None else " (default: %(default)s)"))
+                        help="robot.toml" + told)
     return parent
+
+
+def bench_robot_option() -> argparse.ArgumentParser:
+    """``--robot``, by default the benches' three-segment robot shipped with the package."""
+    from apcc_graph.bench import ROBOT_FILE
+
+    return robot_option(str(ROBOT_FILE), "the three-segment robot shipped with apcc_graph, "
+                        "as data/robots/planar_three.toml")
 
 
 def frames_option(default: int | None = None, minimum: int | None = 1,
