@@ -148,6 +148,18 @@ def test_moving_rms_and_recovery_frames() -> None:
     never = err.copy()
     never[90:, 0] = 5.0
     assert recovery_frames(never, calm, 20) is None
+    # against a level (a recording simulated anew): the undisturbed run's windows are not
+    # consulted; where they are high, its frames would excuse the faulted run's error there
+    rough, bumpy = calm.copy(), err.copy()
+    rough[40:60], bumpy[40:60] = 1.0, 0.5
+    assert recovery_frames(bumpy, rough, 20) == 0
+    # the last window with two frames of the bump (frames 58, 59) starts 38 frames after 20
+    assert recovery_frames(bumpy, None, 20, level=np.array([0.1, 0.1])) == 39
+    assert recovery_frames(err, None, 20, level=np.array([0.1, 0.1])) == 0
+    assert recovery_frames(late, None, 20, level=np.array([0.1, 0.1])) == 25
+    assert recovery_frames(err, None, 20, level=np.array([0.04, 0.1])) is None
+    with pytest.raises(ValueError, match="undisturbed errors or their level"):
+        recovery_frames(err, None, 20)
 
 
 def test_sigma_honesty() -> None:

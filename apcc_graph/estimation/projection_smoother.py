@@ -1,38 +1,29 @@
 """The fixed-lag smoother on the projection model: ``estimate(..., method="smoother")``.
 
 Every observation enters the graph once, in a projection factor that eliminates its track's
-point or, for a track that outlives the window, as a landmark observation; ``apcc-graph bench
-smoother`` measures it against the Cramer-Rao bound of the whole sequence and against the bound
-of a fixed lag (:func:`apcc_graph.evaluation.sequence_bound.lag_bound`). The epipolar smoother
+point or, for a track that outlives the window, as a landmark observation (``apcc-graph bench
+smoother`` measures it against the Cramer-Rao bounds). The epipolar smoother
 (:mod:`apcc_graph.estimation.smoother`, ``vision="epipolar"``) stays for comparison.
 
-This module drives the window (:mod:`apcc_graph.estimation.window`) and nothing else; the pieces
-it drives are separate:
+This module drives the window (:mod:`apcc_graph.estimation.window`); the pieces it drives:
+the graph (:mod:`apcc_graph.estimation.graph`: one ``Vector(S)`` of angles per frame, the start
+prior, a weak motion prior, soft joint limits, projection factors in which every observation
+counts once and each track's point is eliminated, :mod:`factors.projection`); the track pieces,
+committed into one factor when their track ends, when their first frame is about to leave the
+window, or at ``GraphOptions.max_track_frames``, with the outlier decisions
+(:mod:`apcc_graph.estimation.projection_tracks`, :mod:`apcc_graph.estimation.live_tracks`);
+the new frame's initial angles (:mod:`apcc_graph.estimation.initial_guess`); the landmarks,
+tracks that outlive the window and keep their point as a variable
+(:mod:`apcc_graph.estimation.landmarks`); the still frames
+(:mod:`apcc_graph.estimation.stillness`).
 
-- the graph (:mod:`apcc_graph.estimation.graph`): one ``Vector(S)`` of angles per frame, the
-  start prior, a weak motion prior, soft joint limits, and projection factors in which every
-  observation counts once and each track's point is eliminated (:mod:`factors.projection`);
-- the track pieces and their factors, with the outlier decisions
-  (:mod:`apcc_graph.estimation.projection_tracks`, :mod:`apcc_graph.estimation.live_tracks`):
-  a piece is committed into one projection factor, all its observations at once, when its track
-  ends, when its first frame is about to leave the window, or at
-  ``GraphOptions.max_track_frames``;
-- the new frame's initial angles (:mod:`apcc_graph.estimation.initial_guess`): the prediction,
-  started by the 1-point front end where few points are known, refined against the live tracks'
-  and the landmarks' points;
-- the landmarks (:mod:`apcc_graph.estimation.landmarks`): tracks that outlive the window keep
-  their point as a variable, with gtsam's C++ projection factors on per-frame camera poses tied
-  to the angles.
-
-gtsam's ``IncrementalFixedLagSmoother`` (iSAM2) holds the window; it re-linearises the
-projection factors whose frames move more than ``relinearize_threshold``, and marginalises frames
-older than ``lag``. :meth:`ProjectionFixedLagSmoother.finish` commits the live tracks and returns
-every frame's final estimate.
+gtsam's ``IncrementalFixedLagSmoother`` (iSAM2) holds the window, re-linearises the factors
+whose frames move more than ``relinearize_threshold`` and marginalises frames older than ``lag``.
 
 Failure modes handled: a frame without tracks (the motion prior carries it; without a motion
 prior, a loose prior at the initial guess keeps the system determined, so marginalising such a
-frame is safe); a robot standing still (no parallax: the points are weakly determined, and the
-Schur complement leaves the angles to the priors); gtsam's indeterminate-system exception
+frame is safe); a robot standing still (after a few still frames the next ones are held out of
+the graph: :mod:`apcc_graph.estimation.stillness`); gtsam's indeterminate-system exception
 (caught; the smoother restarts from its last estimate with the start prior at that estimate).
 """
 
@@ -50,17 +41,18 @@ from apcc_graph.estimation.graph import frame_key, limit_factor
 from apcc_graph.estimation.initial_guess import frame_pairs, one_point_guess, predict, refine
 from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows
+from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions, smoother_settings
 from apcc_graph.estimation.start_check import check_start
+from apcc_graph.estimation.stillness import StillFrames
 from apcc_graph.estimation.window import (
     SmootherFrame,
     StreamingSmoother,
     Window,
+    check_timestamp,
     key_stamps,
     new_gtsam_smoother,
-    observed_camera,
     start_angles,
     stream_estimate,
     warn_restart,
@@ -123,6 +115,13 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         self._previous_base: FloatArray | None = None
         self._rng = np.random.default_rng(0)
         self._live_indices: list[int] = []
+        self._still = StillFrames(math.inf if s.still_frames is None else s.still_frames,
+                                  s.still_chi2)
+
+    @property
+    def n_frames(self) -> int:
+        """Frames received so far (held ones included)."""
+        return self._still.count
 
     @property
     def committed_observations(self) -> int:
@@ -145,13 +144,16 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
             ValueError: a timestamp not after the previous frame's, or observations of a
                 segment without a camera.
         """
-        window = self._window
-        f = window.count
-        t = window.check_time(f, observations.timestamp)
-        rows = self._ingest(f, observations)
-        previous, window.last_time = window.last_time, t
+        window, still = self._window, self._still
+        f = window.count  # the graph frame it becomes, unless the robot stands still
+        t = check_timestamp(still.count, observations.timestamp, still.last_time)
+        rows = frame_rows(self.robot, still.count, observations, self.options.threshold_px)
         base = (None if observations.world_T_base is None
                 else np.asarray(observations.world_T_base, dtype=float))
+        if still.hold(rows, base, f, t, window.inside(f - 1)):
+            return still.held(self._frame_estimate(f - 1))
+        t -= still.paused  # the graph's clock stops while the robot stands still
+        previous, window.last_time = window.last_time, t
         add = Additions()
         self._make_room(add, f, t, rows)
         weights = {cam: np.ones(len(ids)) for cam, (ids, _, _) in rows.items()}
@@ -166,24 +168,7 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         live = self._tracks.live_factors(add.graph)
         self._solve(add.graph, f, t, thetas, live, add.values, add.stamps)
         window.count += 1
-        return self._frame_estimate(f)
-
-    def _ingest(self, f: int, obs: FrameObservations) -> Rows:
-        """camera -> (track ids, normalised points, whitening) of the new frame."""
-        out = {}
-        for cam, (track_ids, uv) in obs.tracks.items():
-            camera = observed_camera(self.robot, f, cam)
-            ids = np.asarray(track_ids, dtype=np.int64)
-            if len(ids) == 0:
-                continue
-            given = None if obs.bearings is None else obs.bearings.get(cam)
-            if given is None:
-                xy = camera.normalized(np.asarray(uv, dtype=float))
-            else:
-                b = np.asarray(given, dtype=float)
-                xy = b[:, :2] / b[:, 2:3]
-            out[cam] = (ids, xy, camera.pixel_jacobian(xy) / self.options.threshold_px)
-        return out
+        return still.frame_of(self._frame_estimate(f))
 
     def _make_room(self, add: Additions, f: int, t: float, rows: Rows) -> None:
         """Before frame f (at ``t`` seconds) enters: tracks that outlive the window become
@@ -344,6 +329,11 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
                              window.status[f].copy())
 
     # ------------------------------------------------------------------------- output
+    def pop_final(self) -> list[SmootherFrame]:
+        """The frames that left the window since the last call (with the still frames each
+        stands for), in order, and forget them."""
+        return self._still.expand(self._window.pop_final())
+
     def finish(self) -> list[SmootherFrame]:
         """Commit every live track, then return every frame's final estimate in order (frames
         still in the window: their current smoothed estimate), except frames already taken by
@@ -362,7 +352,7 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
                         self._window.thetas[g] = estimate.atVector(frame_key(g))
             except (RuntimeError, IndexError):
                 self._window.recoveries += 1
-        return self._window.frames(self._sigmas)
+        return self._still.expand(self._window.frames(self._sigmas), done=False)
 
     def calibration(self) -> Mapping[int, tuple[float, float]] | None:
         """Self-calibration is not part of the projection smoother yet: ``None``."""

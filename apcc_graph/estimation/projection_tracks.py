@@ -29,9 +29,10 @@ from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_tls_weights
 from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions
-from apcc_graph.estimation.window import Window
+from apcc_graph.estimation.window import Window, observed_camera
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import FrameObservations
 from factors.camera_chain import CameraChain
 from factors.projection import ProjectionFactor
 from factors.reduced_system import robust_residual_norms
@@ -189,3 +190,26 @@ class ProjectionTracks:
             if factor.points is not None:
                 for piece, point in zip(factor.obs.ids.tolist(), factor.points, strict=True):
                     points[piece] = point
+
+
+def frame_rows(robot: Robot, frame: int, obs: FrameObservations, threshold_px: float) -> Rows:
+    """A frame's observations as camera -> (track ids, normalised points, whitening
+    ``(N, 2, 2)``: the pixel Jacobian over ``threshold_px``); cameras without tracks left out.
+
+    Raises:
+        ValueError: observations of a segment without a camera (naming ``frame``).
+    """
+    out = {}
+    for cam, (track_ids, uv) in obs.tracks.items():
+        camera = observed_camera(robot, frame, cam)
+        ids = np.asarray(track_ids, dtype=np.int64)
+        if len(ids) == 0:
+            continue
+        given = None if obs.bearings is None else obs.bearings.get(cam)
+        if given is None:
+            xy = camera.normalized(np.asarray(uv, dtype=float))
+        else:
+            b = np.asarray(given, dtype=float)
+            xy = b[:, :2] / b[:, 2:3]
+        out[cam] = (ids, xy, camera.pixel_jacobian(xy) / threshold_px)
+    return out

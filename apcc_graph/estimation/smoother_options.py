@@ -210,6 +210,12 @@ class ProjectionSmootherOptions(SmootherOptions):
             variables, which the landmarks' observations attach to (radians and metres).
         max_landmarks: most landmarks per camera at a time (each update re-eliminates every
             landmark seen in the new frame); the other tracks that outlive the window are cut.
+        still_frames: after this many frames in which no camera saw motion, the frames that
+            follow are held out of the graph until the robot moves again
+            (:mod:`apcc_graph.estimation.stillness`); ``None`` never holds a frame.
+        still_chi2: a camera sees no motion while the chi-square of its tracks' coherent
+            displacement stays below this (noise alone exceeds the default with probability
+            1e-4).
     """
 
     relinearize_threshold: float = 3e-4
@@ -222,12 +228,19 @@ class ProjectionSmootherOptions(SmootherOptions):
     landmark_sigma: float = 10.0
     pose_sigma: float = 1e-4
     max_landmarks: int = 10
+    still_frames: int | None = 10
+    still_chi2: float = 18.4
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _coerce(self, {"relinearize": bool, "min_live_rows": int, "front_end_rows": int,
                        "point_iterations": int, "commit_every": int, "landmarks": bool,
-                       "landmark_sigma": float, "pose_sigma": float, "max_landmarks": int})
+                       "landmark_sigma": float, "pose_sigma": float, "max_landmarks": int,
+                       "still_chi2": float})
+        if self.still_frames is not None:
+            _coerce(self, {"still_frames": int})
+            _at_least(self, "still_frames", self.still_frames, 0, "frames")
+        _positive(self, "still_chi2", self.still_chi2, "(a chi-square with 2 degrees of freedom)")
         _at_least(self, "min_live_rows", self.min_live_rows, 2, "observations")
         _at_least(self, "front_end_rows", self.front_end_rows, 0, "observations")
         _at_least(self, "point_iterations", self.point_iterations, 1, "steps")

@@ -66,7 +66,9 @@ class SmootherFrame:
         status: ``(S,)`` per segment: ``"ok"`` (measured), ``"no-tracks"``, ``"no-motion"``,
             ``"no-consensus"``, ``"no-camera"`` (the prior carries it), ``"initial"`` (first
             frame), ``"recovered"`` (after a gtsam failure); the projection smoother also
-            ``"predicted"`` (no known point seen: the prediction stands).
+            ``"predicted"`` (no known point seen: the prediction stands) and ``"still"`` (the
+            robot stood still: the frame takes the estimate of the last one that moved;
+            :mod:`apcc_graph.estimation.stillness`).
         calibration: ``(S, 2)`` current ``k`` and ``delta_max`` (radians) when self-calibrating.
     """
 
@@ -99,6 +101,17 @@ def key_stamps(stamps: Iterable[tuple[int, float]] = ()) -> gtsam.FixedLagSmooth
     for key, stamp in stamps:
         out.insert((key, stamp))
     return out
+
+
+def check_timestamp(frame: int, timestamp: float, last: float | None) -> float:
+    """Frame ``frame``'s timestamp (seconds), which must be finite and after ``last``, the
+    previous frame's (``None`` for the first frame)."""
+    t = float(timestamp)
+    if not math.isfinite(t) or (last is not None and t <= last):
+        shown = float("nan") if last is None else last
+        raise ValueError(f"frame {frame}: timestamp {t!r} s is not after the previous "
+                         f"frame's {shown!r} s")
+    return t
 
 
 class Window:
@@ -147,13 +160,7 @@ class Window:
 
     def check_time(self, frame: int, timestamp: float) -> float:
         """The new frame's timestamp (seconds), which must come after the previous frame's."""
-        t = float(timestamp)
-        last = self.last_time
-        if not math.isfinite(t) or (last is not None and t <= last):
-            shown = float("nan") if last is None else last
-            raise ValueError(f"frame {frame}: timestamp {t!r} s is not after the previous "
-                             f"frame's {shown!r} s")
-        return t
+        return check_timestamp(frame, timestamp, self.last_time)
 
     def leaving(self, stamp: float) -> list[int]:
         """Frames the next update marginalises: their variables' timestamps are more than the

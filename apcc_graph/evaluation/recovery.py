@@ -28,23 +28,28 @@ def moving_rms(errors: FloatArray, window: int = WINDOW) -> FloatArray:
     return np.sqrt((c[window:] - c[:-window]) / window)
 
 
-def recovery_frames(errors: FloatArray, undisturbed: FloatArray, end: int, factor: float = 2.0,
-                    window: int = WINDOW) -> int | None:
+def recovery_frames(errors: FloatArray, undisturbed: FloatArray | None, end: int,
+                    factor: float = 2.0, window: int = WINDOW,
+                    level: FloatArray | None = None) -> int | None:
     """Frames after ``end`` (the first frame after the fault) until the error is back within
     ``factor`` times the undisturbed error for good.
 
     The undisturbed error of a ``window``-frame run is the larger of the undisturbed run's
     moving RMS there and its RMS over all frames from ``end`` (a smoother's errors are
     correlated from frame to frame, so a short window of the undisturbed run alone can dip far
-    below its typical error).
+    below its typical error). When the faulted recording's noise is not the undisturbed one's
+    (the fault changed the motion, so the recording was simulated anew), a window of the
+    undisturbed run says nothing of the faulted run's window: give ``level`` instead, the
+    undisturbed error per segment (e.g. its RMS over the whole recording).
 
     Args:
         errors: ``(F, S)`` estimate minus truth of the faulted run.
         undisturbed: ``(F, S)`` estimate minus truth of the same estimator on the same
-            recording without the fault.
+            recording without the fault (``None`` with ``level``).
         end: first frame after the fault.
         factor: how far above the undisturbed error counts as recovered.
         window: frames per moving RMS.
+        level: ``(S,)`` the undisturbed error, instead of ``undisturbed``'s windows.
 
     Returns:
         ``k``: every moving RMS from frame ``end + k`` on is within ``factor`` times the
@@ -53,8 +58,13 @@ def recovery_frames(errors: FloatArray, undisturbed: FloatArray, end: int, facto
     moving = moving_rms(np.asarray(errors, dtype=float)[end:], window)
     if len(moving) == 0:
         return None
-    calm = np.asarray(undisturbed, dtype=float)[end:]
-    limit = factor * np.maximum(moving_rms(calm, window), np.sqrt(np.mean(calm**2, axis=0)))
+    if level is not None:
+        limit = factor * np.asarray(level, dtype=float)[None, :]
+    elif undisturbed is not None:
+        calm = np.asarray(undisturbed, dtype=float)[end:]
+        limit = factor * np.maximum(moving_rms(calm, window), np.sqrt(np.mean(calm**2, axis=0)))
+    else:
+        raise ValueError("recovery_frames: give the undisturbed errors or their level")
     bad = np.flatnonzero(np.any(moving > limit, axis=1))
     if len(bad) == 0:
         return 0
