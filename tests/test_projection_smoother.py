@@ -29,11 +29,8 @@ from apcc_graph.estimation.initial_guess import (
 )
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.projection_smoother import (
-    ProjectionFixedLagSmoother,
-    projection_smoother_estimate,
-)
-from apcc_graph.estimation.smoother import smoother_estimate
+from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
+from apcc_graph.estimation.smoother_runs import projection_smoother_estimate, smoother_estimate
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.io.robot_file import load_robot

@@ -16,7 +16,8 @@ import pytest
 import apcc_graph
 from apcc_graph.cli import main
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate
-from apcc_graph.estimation.smoother import FixedLagSmoother, smoother_estimate
+from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.io.estimates import load_theta_csv
 from apcc_graph.io.robot_file import load_robot

@@ -166,3 +166,15 @@ def test_without_holding_no_frame_is_still(frozen: tuple) -> None:
     _, final, _ = _run(robot, seq, still_frames=None)
     assert [f.frame for f in final] == list(range(seq.n_frames))
     assert not any(f.status[0] == "still" for f in final)
+
+
+def test_tracks_returned_only_after_a_frame_without_tracks_and_only_new_ones() -> None:
+    from apcc_graph.estimation.blackout import tracks_returned
+
+    rows = _rows(np.zeros((5, 2)), ids=np.arange(10, 15))
+    nothing_known = lambda cam, ids: np.zeros(len(ids), dtype=bool)  # noqa: E731
+    one_known = lambda cam, ids: ids == 12  # noqa: E731
+    assert tracks_returned(rows, {}, nothing_known)
+    assert not tracks_returned(rows, {}, one_known)  # a track goes on: tied to the window
+    assert not tracks_returned(rows, rows, nothing_known)  # the previous frame had tracks
+    assert not tracks_returned({}, {}, nothing_known)  # still blind

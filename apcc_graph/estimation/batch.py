@@ -42,7 +42,7 @@ from apcc_graph.estimation.graph import (
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.robust import gnc_start
-from apcc_graph.estimation.smoother import smoother_estimate
+from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment

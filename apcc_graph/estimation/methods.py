@@ -106,7 +106,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
 
         return batch_estimate(sequence, theta0=theta0, **options)
     if method == "smoother":
-        from apcc_graph.estimation.smoother import smoother_estimate
+        from apcc_graph.estimation.smoother_runs import smoother_estimate
 
         return smoother_estimate(sequence, theta0=theta0, **options)
     raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")

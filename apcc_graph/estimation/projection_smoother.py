@@ -37,12 +37,12 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from apcc_graph.estimation.blackout import tracks_returned, warn_blackout
 from apcc_graph.estimation.graph import frame_key, limit_factor
 from apcc_graph.estimation.initial_guess import frame_pairs, one_point_guess, predict, refine
 from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
-from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions, smoother_settings
 from apcc_graph.estimation.start_check import check_start
 from apcc_graph.estimation.stillness import StillFrames
@@ -54,12 +54,11 @@ from apcc_graph.estimation.window import (
     key_stamps,
     new_gtsam_smoother,
     start_angles,
-    stream_estimate,
     warn_restart,
 )
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
-from apcc_graph.model.sequence import FrameObservations, Sequence
+from apcc_graph.model.sequence import FrameObservations
 
 LIMIT_MARGIN = math.radians(10.0)
 """Soft joint limits join frames whose initial angles come within this of a limit (radians)."""
@@ -153,6 +152,8 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         if still.hold(rows, base, f, t, window.inside(f - 1)):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
+        if window.inside(f - 1) and tracks_returned(rows, self._previous_rows, self._known):
+            warn_blackout(still.count - 1, still.last_time or 0.0, self._sigmas(f - 1))
         previous, window.last_time = window.last_time, t
         add = Additions()
         self._make_room(add, f, t, rows)
@@ -266,6 +267,7 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
             self._smoother.update(graph, values, stamps, self._live_indices)
         except (RuntimeError, IndexError) as error:
             warn_restart(f, t, error)
+            self._window.recoveries += 1
             self._restart(f, t, thetas)
             return
         indices = self._smoother.getISAM2Result().getNewFactorsIndices()
@@ -282,10 +284,13 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
                 self._window.thetas[g] = estimate.atVector(key)
         self._landmarks.update_points(estimate)
 
+    def _known(self, cam: int, ids: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Which of a camera's track ids are landmarks or live tracks."""
+        return (self._landmarks.of(cam, ids) >= 0) | (self._tracks.live.piece_ids(cam, ids) >= 0)
+
     def _restart(self, f: int, t: float, thetas: FloatArray) -> None:
         """After a gtsam failure: a new smoother holding only frame f, at its guess, with a
         prior of ``options.theta0_sigma`` (frames in the window keep their last estimates)."""
-        self._window.recoveries += 1
         self._window.renew()
         graph = gtsam.NonlinearFactorGraph()
         S = self.robot.n_segments
@@ -357,34 +362,3 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
     def calibration(self) -> Mapping[int, tuple[float, float]] | None:
         """Self-calibration is not part of the projection smoother yet: ``None``."""
         return None
-
-
-def projection_smoother_estimate(
-    sequence: Sequence,
-    theta0: ArrayLike | None = None,
-    lag: float | None = None,
-    options: GraphOptions | None = None,
-    progress: bool = False,
-    **smoother_options: Any,
-) -> Estimate:
-    """Run :class:`ProjectionFixedLagSmoother` over a recorded sequence, frame by frame.
-
-    Each frame's angles are its final smoothed estimate (the last update in which it was inside
-    the window). Ground-truth columns are never read.
-
-    Args:
-        sequence: the sequence.
-        theta0: ``(S,)`` starting configuration in radians (default straight).
-        lag: window length in seconds (default the smoother options' 1 s).
-        options: graph construction (:class:`~apcc_graph.estimation.options.GraphOptions`).
-        progress: show a progress bar.
-        **smoother_options: further :class:`ProjectionFixedLagSmoother` arguments (fields of
-            :class:`~apcc_graph.estimation.smoother_options.ProjectionSmootherOptions`, or
-            ``settings``).
-
-    Returns:
-        The estimate, ``method = "smoother"``.
-    """
-    smoother = ProjectionFixedLagSmoother(sequence.robot, lag=lag, options=options,
-                                          theta0=theta0, **smoother_options)
-    return stream_estimate(smoother, sequence, progress)
