@@ -10,10 +10,19 @@ import warnings
 from collections.abc import Sequence
 
 from apcc_graph import __version__
-from apcc_graph.cli import bench, calibrate, estimate, evaluate, plot, simulate, track
+from apcc_graph.cli import (
+    bench,
+    calibrate,
+    estimate,
+    evaluate,
+    montecarlo,
+    plot,
+    simulate,
+    track,
+)
 from apcc_graph.cli.common import Parser, UserError
 
-SUBCOMMANDS = (calibrate, simulate, track, estimate, evaluate, plot, bench)
+SUBCOMMANDS = (calibrate, simulate, track, estimate, evaluate, montecarlo, plot, bench)
 """The modules of the subcommands, in the order ``--help`` lists them."""
 
 

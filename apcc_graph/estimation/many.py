@@ -27,10 +27,10 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
@@ -42,6 +42,8 @@ DONE = "done.txt"
 """Written last into a sequence's output folder: its outputs are complete."""
 
 SUMMARY_COLUMNS = ("sequence", "method", "frames", "seconds", "status")
+
+Result = TypeVar("Result")
 
 
 @dataclass(frozen=True)
@@ -181,16 +183,25 @@ def estimate_many(sequences: Sequence[str | Path], out_root: str | Path, method:
     Returns:
         One :class:`SequenceRun` per sequence, in the order given.
     """
-    options = dict(options or {})
-    jobs = [(str(s), str(output_folder(out_root, s))) for s in sequences]
+    options = {**(options or {}), "progress": False}  # one bar, over the sequences
+    jobs = [(str(s), str(output_folder(out_root, s)), method, options, redo) for s in sequences]
     Path(out_root).mkdir(parents=True, exist_ok=True)
-    if scheduler is None and (workers == 1 or (workers is None and not _has_dask())):
-        bar = tqdm(jobs, desc="sequences", disable=not progress)
-        runs = [estimate_one(seq, out, method, options, redo) for seq, out in bar]
-    else:
-        runs = _on_dask(jobs, method, options, workers, scheduler, redo, progress)
+    runs = map_tasks(estimate_one, jobs, workers, scheduler, progress, "sequences")
     atomic_write_text(Path(out_root) / "summary.csv", summary_csv(runs))
     return runs
+
+
+def map_tasks(function: Callable[..., Result], jobs: Sequence[tuple[Any, ...]],
+              workers: int | None = None, scheduler: str | None = None,
+              progress: bool = False, label: str = "tasks") -> list[Result]:
+    """``function(*job)`` for every job, in the order of ``jobs``: in this process with one
+    worker (or without Dask), else one Dask task per job on a local cluster of ``workers``
+    (default: one per core) or on the cluster at ``scheduler``. ``function`` must be
+    importable by the workers (a module-level function) and should not raise: a job's failure
+    is best returned as its result."""
+    if scheduler is None and (workers == 1 or (workers is None and not _has_dask())):
+        return [function(*job) for job in tqdm(jobs, desc=label, disable=not progress)]
+    return _on_dask(function, list(jobs), workers, scheduler, progress, label)
 
 
 def _has_dask() -> bool:
@@ -206,31 +217,28 @@ def _has_dask() -> bool:
     return False
 
 
-def _on_dask(jobs: list[tuple[str, str]], method: str, options: dict[str, Any],
-             workers: int | None, scheduler: str | None, redo: bool, progress: bool
-             ) -> list[SequenceRun]:
+def _on_dask(function: Callable[..., Result], jobs: list[tuple[Any, ...]], workers: int | None,
+             scheduler: str | None, progress: bool, label: str) -> list[Result]:
     """Every job as one Dask task; results in the order of ``jobs``."""
     try:
         from distributed import Client, as_completed
     except ImportError:
         raise ValueError('more than one worker needs Dask: pip install "apcc-graph[dask]" '
                          "(or use --workers 1)") from None
-    options = {**options, "progress": False}
     cluster = None
     if scheduler is None:
         cluster = _local_cluster(workers or os.cpu_count() or 1)
     with Client(scheduler or cluster) as client:
-        futures = {client.submit(estimate_one, seq, out, method, options, redo, pure=False): i
-                   for i, (seq, out) in enumerate(jobs)}
-        runs: list[SequenceRun | None] = [None] * len(jobs)
-        bar = tqdm(total=len(jobs), desc="sequences", disable=not progress)
+        futures = {client.submit(function, *job, pure=False): i for i, job in enumerate(jobs)}
+        results: list[Result | None] = [None] * len(jobs)
+        bar = tqdm(total=len(jobs), desc=label, disable=not progress)
         for future in as_completed(futures):
-            runs[futures[future]] = future.result()
+            results[futures[future]] = future.result()
             bar.update()
         bar.close()
     if cluster is not None:
         cluster.close()
-    return [run for run in runs if run is not None]
+    return [r for r in results if r is not None]
 
 
 def _local_cluster(workers: int) -> Any:
