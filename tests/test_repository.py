@@ -100,3 +100,30 @@ def test_the_benches_robot_ships_with_the_package() -> None:
     assert ROBOT_FILE.parent == ROOT / "apcc_graph" / "bench"
     pyproject = (ROOT / "pyproject.toml").read_text()
     assert '"apcc_graph.bench" = ["*.toml"]' in pyproject
+
+
+def test_the_refusal_counter_counts_raises_blocks_exits_and_parameters(tmp_path: Path) -> None:
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    try:
+        from refusals import count
+    finally:
+        sys.path.pop(0)
+    (tmp_path / "test_a.py").write_text(
+        "import pytest\n"
+        "@pytest.mark.parametrize('x', [1, 2, 3])\n"
+        "def test_p(x):\n"
+        "    with pytest.raises(ValueError):\n"
+        "        int('a')\n"
+        "def test_cli():\n"
+        "    assert main(['x']) == 1\n"
+        "    assert main(['y']) == 0\n"
+        "    with pytest.warns(UserWarning):\n"
+        "        pass\n"
+        "def helper():\n"
+        "    with pytest.raises(ValueError):\n"
+        "        pass\n")
+    (tmp_path / "test_b.py").write_text("def test_nothing():\n    assert True\n")
+    counts = count(tmp_path)
+    assert (counts["refused"], counts["warned"], counts["files"]) == (4, 1, 1)
