@@ -87,6 +87,16 @@ def out_option(help: str, required: bool = True,  # noqa: A002
     return parent
 
 
+def add_dask_options(group: argparse._ActionsContainer) -> None:
+    """``--workers`` and ``--scheduler``: where many recordings run (a local Dask cluster, this
+    process, or an existing cluster)."""
+    group.add_argument("--workers", type=at_least(1), default=None,
+                       help="Dask workers on a local cluster (default: one per core; 1 runs in "
+                       "this process; Dask is the [dask] extra)")
+    group.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                       help="run on an existing dask.distributed cluster instead")
+
+
 def force_option(help: str) -> argparse.ArgumentParser:  # noqa: A002
     """Parent parser of ``--force``: write where something already is."""
     parent = argparse.ArgumentParser(add_help=False)

@@ -12,7 +12,7 @@ import numpy as np
 from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
-    at_least,
+    add_dask_options,
     check_output_folder,
     degree_list,
     force_option,
@@ -63,11 +63,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "many sequences", "with several sequences, each goes to --out/<name>/ and --out gets\n"
         "summary.csv; a re-run skips sequences whose outputs are complete (--force redoes\n"
         "them); a sequence that fails is reported and does not stop the others")
-    many.add_argument("--workers", type=at_least(1), default=None,
-                      help="Dask workers on a local cluster (default: one per core; 1 runs in "
-                      "this process; Dask is the [dask] extra)")
-    many.add_argument("--scheduler", metavar="ADDRESS", default=None,
-                      help="run on an existing dask.distributed cluster instead")
+    add_dask_options(many)
     est.set_defaults(run=run)
 
 

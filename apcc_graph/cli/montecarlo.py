@@ -9,6 +9,7 @@ from pathlib import Path
 from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
+    add_dask_options,
     at_least,
     bench_robot_option,
     force_option,
@@ -47,11 +48,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                     help="pixel noise, standard deviation per coordinate (default 1)")
     mc.add_argument("--outliers", type=fraction, default=0.1,
                     help="fraction of outlier observations (default 0.1)")
-    mc.add_argument("--workers", type=at_least(1), default=None,
-                    help="Dask workers on a local cluster (default: one per core; 1 runs in "
-                    "this process; Dask is the [dask] extra)")
-    mc.add_argument("--scheduler", metavar="ADDRESS", default=None,
-                    help="run on an existing dask.distributed cluster instead")
+    add_dask_options(mc)
     mc.set_defaults(run=run)
 
 
