@@ -178,3 +178,22 @@ def test_tracks_returned_only_after_a_frame_without_tracks_and_only_new_ones() -
     assert not tracks_returned(rows, {}, one_known)  # a track goes on: tied to the window
     assert not tracks_returned(rows, rows, nothing_known)  # the previous frame had tracks
     assert not tracks_returned({}, {}, nothing_known)  # still blind
+
+
+def test_a_recording_that_starts_without_tracks_is_no_blackout(frozen: tuple) -> None:
+    import warnings
+
+    from apcc_graph.estimation.blackout import BlackoutWarning
+    from apcc_graph.model.sequence import FrameObservations
+
+    robot, seq = frozen
+    smoother = ProjectionFixedLagSmoother(robot, lag=1.0, theta0=seq.thetas[0])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for f in range(3):  # the cameras warm up: nothing tracked yet
+            smoother.update(FrameObservations(seq.timestamps[f], {}))
+        for f in range(3, 8):
+            smoother.update(seq.frame(f))
+        smoother.update(FrameObservations(seq.timestamps[8], {}))  # a dropped frame, then
+        smoother.update(seq.frame(9))  # the same tracks: still no blackout
+    assert not [w for w in caught if issubclass(w.category, BlackoutWarning)]

@@ -114,6 +114,7 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         self._previous_base: FloatArray | None = None
         self._rng = np.random.default_rng(0)
         self._live_indices: list[int] = []
+        self._tracked = False  # whether any frame had tracks yet
         self._still = StillFrames(math.inf if s.still_frames is None else s.still_frames,
                                   s.still_chi2)
 
@@ -152,8 +153,10 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         if still.hold(rows, base, f, t, window.inside(f - 1)):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
-        if window.inside(f - 1) and tracks_returned(rows, self._previous_rows, self._known):
+        if (self._tracked and window.inside(f - 1)
+                and tracks_returned(rows, self._previous_rows, self._known)):
             warn_blackout(still.count - 1, still.last_time or 0.0, self._sigmas(f - 1))
+        self._tracked = self._tracked or bool(rows)
         previous, window.last_time = window.last_time, t
         add = Additions()
         self._make_room(add, f, t, rows)
