@@ -1,0 +1,267 @@
+"""The projection batch's solver: one factor graph over a whole sequence, Levenberg-Marquardt
+(gtsam) with graduated non-convexity of the outlier decisions, and the marginals.
+
+:func:`projection_solve` starts from given angles;
+:func:`apcc_graph.estimation.batch.batch_estimate` finds them (the chain or the smoother) and
+calls it, and so does the projection smoother when it re-acquires the angles after a blackout
+(:mod:`apcc_graph.estimation.blackout`). See :mod:`apcc_graph.estimation.batch` for the method.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence as SequenceOf
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+from tqdm import tqdm
+
+from apcc_graph.estimation.graph import (
+    CameraTerms,
+    calibration_factors,
+    camera_chain,
+    camera_observations,
+    frame_key,
+    prior_factors,
+    thetas_from,
+    values_from,
+)
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.robust import gnc_start
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
+from apcc_graph.model.sequence import Sequence
+from factors.projection import calibrated, calibration_key
+
+
+@dataclass(frozen=True)
+class BatchReport:
+    """What the batch did: stages, Levenberg-Marquardt iterations, outliers found."""
+
+    stages: int
+    iterations: int
+    outliers: int
+    observations: int
+
+
+def build_terms(sequence: Sequence, options: GraphOptions,
+                calibrate: bool = False) -> list[CameraTerms]:
+    """The projection terms of every camera of the sequence that has tracks."""
+    terms = []
+    for cam in sequence.robot.camera_segments:
+        obs = camera_observations(sequence, cam, options.threshold_px, options.min_track_rows,
+                                  max_track_frames=options.max_track_frames)
+        if obs is None:
+            continue
+        chain = camera_chain(sequence.robot, cam, sequence.world_T_base, sequence.psis)
+        terms.append(CameraTerms(obs, chain, sequence.n_segments, options.frames_per_chunk,
+                                 calibrate))
+    return terms
+
+
+def _values_and_ordering(thetas: FloatArray, frames: SequenceOf[int],
+                         calibration: FloatArray | None
+                         ) -> tuple[gtsam.Values, gtsam.Ordering]:
+    """Values of the angles (and calibration); frames in time order (the graph is banded),
+    then the calibration variables, which every camera's factors share."""
+    values = values_from(thetas, frames)
+    ordering = gtsam.Ordering()
+    for f in frames:
+        ordering.push_back(frame_key(f))
+    if calibration is not None:
+        for j, kd in enumerate(calibration):
+            values.insert(calibration_key(j), np.asarray(kd, dtype=float))
+            ordering.push_back(calibration_key(j))
+    return values, ordering
+
+
+def optimise(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, frames: SequenceOf[int],
+             max_iterations: int, relative_tolerance: float = 1e-6,
+             calibration: FloatArray | None = None
+             ) -> tuple[FloatArray, int, FloatArray | None]:
+    """Levenberg-Marquardt from ``thetas`` (and ``calibration``, ``(S, 2)`` k and delta_max,
+    when self-calibrating); the optimised angles, iterations and calibration."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(relative_tolerance)
+    params.setAbsoluteErrorTol(1e-9)
+    values, ordering = _values_and_ordering(thetas, frames, calibration)
+    params.setOrdering(ordering)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    result = optimizer.optimize()
+    cal = (None if calibration is None else
+           np.array([result.atVector(calibration_key(j)) for j in range(len(calibration))]))
+    return thetas_from(result, frames), int(optimizer.iterations()), cal
+
+
+def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
+                    frames: SequenceOf[int], dense_limit: int = 6000,
+                    calibration: FloatArray | None = None) -> FloatArray:
+    """``(F, S)`` marginal standard deviations of the angles at ``thetas`` (NaN where
+    undetermined); see :func:`marginal_deviations`."""
+    return marginal_deviations(graph, thetas, frames, dense_limit, calibration)[0]
+
+
+def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
+                        frames: SequenceOf[int], dense_limit: int = 6000,
+                        calibration: FloatArray | None = None
+                        ) -> tuple[FloatArray, FloatArray | None]:
+    """Marginal standard deviations at the solution: ``(F, S)`` angles and, when
+    self-calibrating, ``(S, 2)`` of each segment's k and delta_max (NaN where undetermined).
+
+    Up to ``dense_limit`` angles, the information matrix of the graph linearised at
+    ``thetas`` is inverted densely (far faster than gtsam's per-variable
+    ``marginalCovariance`` on this banded graph); beyond, ``gtsam.Marginals``.
+    """
+    values, ordering = _values_and_ordering(thetas, frames, calibration)
+    n_cal = 0 if calibration is None else calibration.size
+    nan = (np.full(thetas.shape, np.nan),
+           None if calibration is None else np.full(calibration.shape, np.nan))
+    if thetas.size <= dense_limit:
+        info, _ = graph.linearize(values).hessian(ordering)
+        try:
+            L = np.linalg.cholesky(info)
+        except np.linalg.LinAlgError:
+            return nan
+        L_inv = scipy.linalg.solve_triangular(L, np.eye(len(info)), lower=True,
+                                              check_finite=False)
+        sig = np.sqrt(np.einsum("ij,ij->j", L_inv, L_inv))
+        cal = None if calibration is None else sig[thetas.size:].reshape(calibration.shape)
+        return sig[:thetas.size].reshape(thetas.shape), cal
+    try:
+        found = gtsam.Marginals(graph, values)
+    except RuntimeError:
+        return nan
+
+    def sigma(key: int) -> FloatArray:
+        return np.sqrt(np.maximum(np.diag(found.marginalCovariance(key)), 0.0))
+
+    cal = (None if n_cal == 0 else
+           np.array([sigma(calibration_key(j)) for j in range(len(calibration))]))
+    return np.array([sigma(frame_key(f)) for f in frames]), cal
+
+
+@dataclass(frozen=True)
+class ProjectionSolution:
+    """What :func:`projection_solve` found.
+
+    Attributes:
+        thetas, sigmas: ``(F, S)`` angles and marginal standard deviations (radians).
+        inliers: ``(F, S)`` observations judged inliers per frame and camera.
+        report: what the solver did.
+        segments: the self-calibrated segment models, or ``None``.
+        calibration_sigmas: ``(S, 2)`` marginal standard deviations of k and delta_max
+            (radians), or ``None``.
+    """
+
+    thetas: FloatArray
+    sigmas: FloatArray
+    inliers: NDArray[np.int64]
+    report: BatchReport
+    segments: tuple[Segment, ...] | None = None
+    calibration_sigmas: FloatArray | None = None
+
+
+def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray,
+                     options: GraphOptions, schedule: SequenceOf[float] | None = None,
+                     max_iterations: int = 30, max_final_rounds: int = 4,
+                     marginals: bool = True, progress: bool = False,
+                     calibrate: bool = False,
+                     calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0))
+                     ) -> ProjectionSolution:
+    """Angles, sigmas and inliers per frame of the projection batch, started at ``initial``.
+
+    Args:
+        sequence: the sequence.
+        initial: ``(F, S)`` initial angles (radians).
+        theta0: ``(S,)`` start prior's mean.
+        options: graph options.
+        schedule: the GNC continuation (values of ``mu`` ending with ``inf``); default
+            :func:`~apcc_graph.estimation.robust.gnc_start`, fitted to the residuals at
+            ``initial``.
+        max_iterations: Levenberg-Marquardt iterations per stage.
+        max_final_rounds: most repetitions of the last stage while decisions change.
+        marginals: compute marginal sigmas (otherwise NaN).
+        progress: show a progress bar over the stages.
+        calibrate: estimate each segment's k and delta_max too, with priors of
+            ``calibration_sigmas`` (k, radians) around the robot's values.
+    """
+    if schedule is not None:
+        schedule = list(schedule)
+        if not schedule or not math.isinf(schedule[-1]):
+            raise ValueError(f"schedule = {schedule!r}: expected values ending with inf")
+    robot = sequence.robot
+    frames = range(sequence.n_frames)
+    terms = build_terms(sequence, options, calibrate)
+    graph = _graph(sequence, terms, theta0, options,
+                   calibration_sigmas if calibrate else None)
+    thetas = np.array(initial, dtype=float)
+    cal = (np.array([[s.k, s.delta_max] for s in robot.segments]) if calibrate else None)
+    # One bar over every long stage: triangulation, the outlier rounds, the marginals.
+    bar = tqdm(total=max_final_rounds + 2, desc="batch", disable=not progress, leave=False)
+    bar.set_postfix_str("triangulating the tracks")
+    for t in terms:
+        t.measure(thetas, robust=True)
+    if schedule is None:
+        schedule = gnc_start(np.concatenate([n for t in terms for n in t.norms] or [[]]),
+                             options.inlier_sigmas)
+    stages = schedule + [math.inf] * (max_final_rounds - 1)
+    bar.total = len(stages) + 2
+    bar.update()
+    iterations = 0
+    for stage, mu in enumerate(stages):
+        bar.set_postfix_str(f"outlier round {stage + 1} of at most {len(stages)}")
+        if stage > 0:
+            segments = None if cal is None else _segments(robot, cal)
+            for t in terms:
+                t.measure(thetas, segments=segments)
+        changed = sum(t.set_weights(options.inlier_sigmas, mu) for t in terms)
+        if stage >= len(schedule) and changed == 0:
+            break
+        # Intermediate stages only lead the weights; the truncated quadratic is solved tightly.
+        tolerance = 1e-6 if math.isinf(mu) else 1e-3
+        thetas, its, cal = optimise(graph, thetas, frames, max_iterations, tolerance, cal)
+        iterations += its
+        bar.update()
+    bar.n = len(stages) + 1
+    bar.set_postfix_str("marginal sigmas")
+    if marginals:
+        sigmas, cal_sigmas = marginal_deviations(graph, thetas, frames, calibration=cal)
+    else:
+        sigmas = np.full(thetas.shape, np.nan)
+        cal_sigmas = None if cal is None else np.full(cal.shape, np.nan)
+    bar.update()
+    bar.close()
+    inliers = np.zeros(thetas.shape, dtype=np.int64)
+    for t in terms:
+        inliers[:, t.camera] = t.inliers_per_frame(sequence.n_frames)
+    report = BatchReport(stage + 1, iterations, sum(t.outlier_rows() for t in terms),
+                         sum(len(c.obs) for t in terms for c in t.chunks))
+    segments = None if cal is None else _segments(robot, cal)
+    return ProjectionSolution(thetas, sigmas, inliers, report, segments, cal_sigmas)
+
+
+def _graph(sequence: Sequence, terms: list[CameraTerms], theta0: FloatArray,
+           options: GraphOptions, calibration_sigmas: tuple[float, float] | None
+           ) -> gtsam.NonlinearFactorGraph:
+    """The projection batch's graph: priors, calibration priors (when ``calibration_sigmas``
+    are given), then every camera's projection factors."""
+    graph = gtsam.NonlinearFactorGraph()
+    frames = range(sequence.n_frames)
+    for factor in prior_factors(frames, sequence.timestamps, theta0, sequence.robot, options):
+        graph.add(factor)
+    if calibration_sigmas is not None:
+        for factor in calibration_factors(sequence.robot, calibration_sigmas):
+            graph.add(factor)
+    for t in terms:
+        for factor in t.factors():
+            graph.add(factor)
+    return graph
+
+
+def _segments(robot: Robot, cal: FloatArray) -> tuple[Segment, ...]:
+    return tuple(calibrated(s, k, d) for s, (k, d) in zip(robot.segments, cal, strict=True))
