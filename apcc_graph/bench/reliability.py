@@ -7,8 +7,9 @@ Every row gives:
 
 - what the estimator did: its warnings and the statuses of the faulty frames;
 - the RMS error per segment beside the Cramer-Rao bound of the faulted recording itself (every
-  observation once, each track's point a nuisance; frames no camera saw have no bound, and the
-  bound counts the images only, so the smoother's motion prior can beat it);
+  observation once, each track's point a nuisance; the bound counts the images only, so the
+  smoother's motion prior can beat it), both over the frames some camera saw (frames no camera
+  saw have no bound: the robot's motion in the dark is anyone's guess);
 - recovery: frames after the fault ends until the 10-frame moving RMS is back within 2x the
   undisturbed run's error over the same frames, for good (target: 30;
   :func:`~apcc_graph.evaluation.recovery.recovery_frames`). A fault that changes the motion
@@ -101,7 +102,7 @@ class FaultRun:
 
     name: str
     did: str
-    rms: FloatArray  # (S,)
+    rms: FloatArray  # (S,) over the frames some camera saw
     bound: FloatArray  # (S,) RMS of the per-frame bound over the frames a camera saw
     recovery: int | None
     z2: float  # worst segment's mean (error / sigma)^2
@@ -136,7 +137,7 @@ def run_case(case: FaultCase, undisturbed: FloatArray | None = None) -> tuple[Fa
         recovery = recovery_frames(errors, undisturbed, case.stop, level=level)
     said = tuple(f"{w.category.__name__}: {w.message}" for w in caught)
     return FaultRun(case.name, _what_it_did(caught, result.status[case.start:case.stop]),
-                    rms(errors), bound, recovery, float(np.nanmax(z2)),
+                    rms(errors[seen]), bound, recovery, float(np.nanmax(z2)),
                     float(np.nanmin(inside)), said, ends), errors
 
 
@@ -164,7 +165,8 @@ def format_reliability(rows: list[FaultRun], frames: int) -> str:
     """The benchmark's table."""
     deg = np.degrees
     out = [f"reliability: the default smoother (lag 1 s), {frames} frames, fault from frame "
-           f"{frames // 3}; RMS and its Cramer-Rao bound per segment (deg)", "",
+           f"{frames // 3}; RMS and its Cramer-Rao bound per segment over the frames some "
+           "camera saw (deg)", "",
            f"{'fault':<38} {'RMS':>20} {'bound':>20} {'recovery':>9} {'(e/s)^2':>8} "
            f"{'<3 sigma':>8}  what the estimator did"]
     for r in rows:

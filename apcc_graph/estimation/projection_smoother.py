@@ -37,7 +37,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.estimation.blackout import tracks_returned, warn_blackout
+from apcc_graph.estimation.blackout import Reacquisition, tracks_returned, warn_blackout
 from apcc_graph.estimation.graph import frame_key, limit_factor
 from apcc_graph.estimation.initial_guess import frame_pairs, one_point_guess, predict, refine
 from apcc_graph.estimation.landmarks import Additions, Landmarks
@@ -115,6 +115,7 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         self._rng = np.random.default_rng(0)
         self._live_indices: list[int] = []
         self._tracked = False  # whether any frame had tracks yet
+        self._reacquiring: Reacquisition | None = None
         self._still = StillFrames(math.inf if s.still_frames is None else s.still_frames,
                                   s.still_chi2)
 
@@ -155,8 +156,16 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         t -= still.paused  # the graph's clock stops while the robot stands still
         if (self._tracked and window.inside(f - 1)
                 and tracks_returned(rows, self._previous_rows, self._known)):
-            warn_blackout(still.count - 1, still.last_time or 0.0, self._sigmas(f - 1))
+            sigmas = self._sigmas(f - 1)
+            warn_blackout(still.count - 1, still.last_time or 0.0, sigmas)
+            self._reacquiring = Reacquisition(self.robot, self.options, window.thetas[f - 1],
+                                              float(np.nanmax(sigmas, initial=math.pi / 6)))
         self._tracked = self._tracked or bool(rows)
+        if self._reacquiring is not None:
+            if self._reacquiring.due(t, window.lag):
+                self._reacquire(self._reacquiring)
+            else:
+                self._reacquiring.add(f, t, observations)
         previous, window.last_time = window.last_time, t
         add = Additions()
         self._make_room(add, f, t, rows)
@@ -291,20 +300,45 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         """Which of a camera's track ids are landmarks or live tracks."""
         return (self._landmarks.of(cam, ids) >= 0) | (self._tracks.live.piece_ids(cam, ids) >= 0)
 
-    def _restart(self, f: int, t: float, thetas: FloatArray) -> None:
-        """After a gtsam failure: a new smoother holding only frame f, at its guess, with a
-        prior of ``options.theta0_sigma`` (frames in the window keep their last estimates)."""
+    def _reacquire(self, kept: Reacquisition) -> None:
+        """One batch over the frames kept since a blackout; they take its angles and sigmas,
+        and the window restarts at the newest (:mod:`apcc_graph.estimation.blackout`)."""
+        self._reacquiring, window, g = None, self._window, kept.slots[-1]
+        if not window.inside(g):
+            return
+        try:
+            thetas, sigmas = kept.solve()
+        except (RuntimeError, ValueError, IndexError):
+            return  # the window goes on as it was
+        status = np.full(len(thetas[0]), "reacquired", dtype="<U24")
+        for h, th, sd in zip(kept.slots, thetas, sigmas, strict=True):
+            if window.inside(h):
+                window.thetas[h], window.status[h] = th, status
+            elif h in window.final:  # left at a restart, not taken yet
+                window.final[h] = SmootherFrame(h, window.final[h].timestamp, th, sd, status)
+        sigma = np.where(np.isfinite(sigmas[-1]), np.maximum(sigmas[-1], 1e-6), math.pi / 6)
+        self._restart(g, window.stamps[g], thetas[-1], gtsam.noiseModel.Diagonal.Sigmas(sigma),
+                      None, dict(zip(kept.slots, sigmas, strict=True)))
+
+    def _restart(self, f: int, t: float, thetas: FloatArray,
+                 prior: gtsam.noiseModel.Base | None = None, status: str | None = "recovered",
+                 sigmas: Mapping[int, FloatArray] | None = None) -> None:
+        """A new smoother holding only frame f, at ``thetas``, with ``prior`` (default: a sigma
+        of ``options.theta0_sigma``, at least 1 deg); the other frames leave with their last
+        estimates (and ``sigmas``). After a gtsam failure, or after a re-acquisition."""
         self._window.renew()
         graph = gtsam.NonlinearFactorGraph()
         S = self.robot.n_segments
-        graph.add(gtsam.PriorFactorVector(frame_key(f), thetas, gtsam.noiseModel.Isotropic.Sigma(
-            S, max(self.options.theta0_sigma, math.radians(1.0)))))
+        graph.add(gtsam.PriorFactorVector(frame_key(f), thetas, prior or gtsam.noiseModel.
+                                          Isotropic.Sigma(S, max(self.options.theta0_sigma,
+                                                                 math.radians(1.0)))))
         values = gtsam.Values()
         values.insert(frame_key(f), thetas)
         self._smoother.update(graph, values, key_stamps([(frame_key(f), t)]))
-        self._window.leave_all_but(f, thetas)
+        self._window.leave_all_but(f, thetas, sigmas)
         self._tracks.bases = {f: self._tracks.bases.get(f)}
-        self._window.status[f] = np.full(S, "recovered", dtype="<U24")
+        if status is not None:
+            self._window.status[f] = np.full(S, status, dtype="<U24")
         self._tracks.reset()
         self._live_indices = []
         self._landmarks.reset()

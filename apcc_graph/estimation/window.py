@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import warnings
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -66,7 +66,8 @@ class SmootherFrame:
         status: ``(S,)`` per segment: ``"ok"`` (measured), ``"no-tracks"``, ``"no-motion"``,
             ``"no-consensus"``, ``"no-camera"`` (the prior carries it), ``"initial"`` (first
             frame), ``"recovered"`` (after a gtsam failure); the projection smoother also
-            ``"predicted"`` (no known point seen: the prediction stands) and ``"still"`` (the
+            ``"predicted"`` (no known point seen: the prediction stands), ``"reacquired"``
+            (re-acquired by a batch after a blackout) and ``"still"`` (the
             robot stood still: the frame takes the estimate of the last one that moved;
             :mod:`apcc_graph.estimation.stillness`).
         calibration: ``(S, 2)`` current ``k`` and ``delta_max`` (radians) when self-calibrating.
@@ -196,14 +197,17 @@ class Window:
         """Whether ``frame``'s variables are still in the window (not marginalised)."""
         return frame in self.stamps
 
-    def leave_all_but(self, frame: int, fallback: FloatArray) -> None:
+    def leave_all_but(self, frame: int, fallback: FloatArray,
+                      sigmas: Mapping[int, FloatArray] | None = None) -> None:
         """After a restart every frame but ``frame`` leaves with its latest estimate (or
-        ``fallback``) and no sigma: the new gtsam smoother no longer holds them."""
+        ``fallback``) and its sigmas from ``sigmas`` (else none): the new gtsam smoother no
+        longer holds them."""
+        nan = np.full(self.n_segments, np.nan)
         for g in [g for g in self.stamps if g != frame]:
             est = self.thetas.pop(g, fallback)
             self.stamps.pop(g)
             self.final[g] = SmootherFrame(g, self.times.pop(g), est.copy(),
-                                          np.full(self.n_segments, np.nan), self.status.pop(g))
+                                          (sigmas or {}).get(g, nan), self.status.pop(g))
             self._keep_recent(g, est)
 
     def pop_final(self) -> list[SmootherFrame]:
