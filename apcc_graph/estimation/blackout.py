@@ -18,7 +18,8 @@ basin that Gauss-Newton steps frame by frame miss: on the bench's blackout, batc
 and 40 frames from 60 degrees off came within 12 and 3 degrees of segment 1 (honest sigmas of
 6 and 1.3), segments 2 and 3 within 2 and 0.4. The batch's angles become those frames' final
 estimates (status ``"reacquired"``), and the window restarts at the newest of them with the
-batch's marginal sigmas as its prior.
+batch's marginal sigmas as its prior. Not robust yet: that window holds one frame and only new
+tracks, and gtsam can fail on it a second later (docs/estimation.md, the known failures).
 """
 
 from __future__ import annotations

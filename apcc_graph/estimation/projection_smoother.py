@@ -107,7 +107,8 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         self._window = Window(s.lag, robot.n_segments,
                               lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold))
         self._tracks = ProjectionTracks(robot, o, s, self._window)
-        self._landmarks = Landmarks(robot, self._tracks.chain, self._frame_state,
+        w = self._window
+        self._landmarks = Landmarks(robot, self._tracks.chain, lambda g: (w.thetas[g], w.times[g]),
                                     o.threshold_px, o.inlier_sigmas, s.lag, s.max_landmarks,
                                     s.landmark_sigma, s.pose_sigma)
         self._previous_rows: Rows = {}
@@ -133,9 +134,6 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
     def outlier_observations(self) -> int:
         """Committed observations judged outliers so far."""
         return self._tracks.outliers
-
-    def _frame_state(self, g: int) -> tuple[FloatArray, float]:
-        return self._window.thetas[g], self._window.times[g]
 
     # ------------------------------------------------------------------------- update
     def update(self, observations: FrameObservations) -> SmootherFrame:
