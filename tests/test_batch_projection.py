@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apcc_graph.estimation import batch as batch_module
+from apcc_graph.estimation import batch_solve as batch_module
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate, projection_solve
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import CameraTerms
