@@ -14,9 +14,9 @@ the frames after the blackout until the first of them is about to leave the wind
 solves those frames in one batch (:func:`~apcc_graph.estimation.batch_solve.projection_solve`,
 started by the paper's chain from its estimate, with a start prior of the motion prior's
 sigma). Graduated non-convexity and Levenberg-Marquardt over a second of new tracks find the
-basin that Gauss-Newton steps frame by frame miss: on the bench's blackout, batches over 20
-and 40 frames from 60 degrees off came within 12 and 3 degrees of segment 1 (honest sigmas of
-6 and 1.3), segments 2 and 3 within 2 and 0.4. The batch's angles become those frames' final
+basin that Gauss-Newton steps frame by frame miss: on the 210-frame test recording, batches over
+20 and 40 frames from 60 degrees off came within 12 and 3 degrees of segment 1 (honest sigmas
+of 6 and 1.3), segments 2 and 3 within 2 and 0.4. The batch's angles become those frames' final
 estimates (status ``"reacquired"``), and the window restarts at the newest of them with the
 batch's marginal sigmas as its prior. Not robust yet: that window holds one frame and only new
 tracks, and gtsam can fail on it a second later (docs/estimation.md, the known failures).
