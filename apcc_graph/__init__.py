@@ -32,6 +32,8 @@ _EXPORTS = {
     "fit_segment": "apcc_graph.calibration.fit",
     "estimate": "apcc_graph.estimation.methods",
     "Estimate": "apcc_graph.estimation.result",
+    "find_start": "apcc_graph.estimation.start_search",
+    "UnknownStartError": "apcc_graph.estimation.start_search",
     "FixedLagSmoother": "apcc_graph.estimation.smoother",
     "ProjectionFixedLagSmoother": "apcc_graph.estimation.projection_smoother",
     "GraphOptions": "apcc_graph.estimation.options",

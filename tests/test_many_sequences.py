@@ -18,7 +18,7 @@ from apcc_graph.simulation.simulator import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 ROBOT = ROOT / "data" / "robots" / "planar_three.toml"
-OPTIONS = {"threshold_px": 1.0}
+OPTIONS = {"threshold_px": 1.0, "theta0": np.zeros(3)}  # a given start: mechanics, not accuracy
 
 
 @pytest.fixture(scope="module")
@@ -66,16 +66,16 @@ def test_a_rerun_skips_complete_outputs_and_redoes_the_rest(recordings: Path,
                                                            tmp_path: Path) -> None:
     folders = sequence_folders([recordings / "seq_1", recordings / "seq_2"])
     out = tmp_path / "out"
-    first = estimate_many(folders, out, "chain", {}, workers=1)
+    first = estimate_many(folders, out, "chain", {"theta0": np.zeros(3)}, workers=1)
     assert [r.status for r in first] == ["ok", "ok"]
     # a run killed while writing seq_2: its outputs never got their completion mark
     (out / "seq_2" / DONE).unlink()
     (out / "seq_2" / "theta.csv").write_text("half")
-    again = estimate_many(folders, out, "chain", {}, workers=1)
+    again = estimate_many(folders, out, "chain", {"theta0": np.zeros(3)}, workers=1)
     assert [r.status for r in again] == ["skipped", "ok"]
     assert again[0].rms == pytest.approx(first[0].rms, rel=1e-6)
     assert (out / "seq_2" / "theta.csv").read_text().startswith("frame,timestamp")
-    redo = estimate_many(folders, out, "chain", {}, workers=1, redo=True)
+    redo = estimate_many(folders, out, "chain", {"theta0": np.zeros(3)}, workers=1, redo=True)
     assert [r.status for r in redo] == ["ok", "ok"]
 
 
@@ -83,7 +83,7 @@ def test_the_command_line_runs_a_parent_folder(recordings: Path, tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "runs"
     assert main(["estimate", str(recordings), "--method", "chain", "--out", str(out),
-                 "--workers", "1"]) == 0
+                 "--workers", "1", "--theta0-deg=0,0,0"]) == 0
     text = capsys.readouterr().out
     assert "4 sequences" in text and "3 estimated" in text and "1 failed" in text
     assert "seq_4" in text and (out / "summary.csv").is_file()

@@ -44,11 +44,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     est.add_argument("--lag", type=float, default=DEFAULT_LAG,
                      help="smoother window in seconds (default: %(default)s)")
     est.add_argument("--theta0-deg", default=None,
-                     help="starting configuration, degrees, one per segment (default straight);"
-                     " write --theta0-deg=-10,5,3 when the first angle is negative")
-    est.add_argument("--theta0-sigma-deg", type=float, default=0.1,
-                     help="how well the starting configuration is known: standard deviation "
-                     "of its prior, degrees (default: %(default)s)")
+                     help="starting configuration, degrees, one per segment; write "
+                     "--theta0-deg=-10,5,3 when the first angle is negative. Without it the "
+                     "start is unknown: found from the first second of images (longer if the "
+                     "robot barely moved), or refused if the recording never tells it")
+    est.add_argument("--theta0-sigma-deg", type=float, default=None,
+                     help="how well --theta0-deg is known: standard deviation of its prior, "
+                     "degrees (default: 0.1)")
     est.add_argument("--noise-px", type=float, default=1.0,
                      help="pixel noise of the tracks, standard deviation per coordinate "
                      "(default: %(default)s); sets the outlier threshold and the sigmas")
@@ -102,14 +104,19 @@ def _options(args: argparse.Namespace) -> dict:
         options["lag"] = args.lag
     elif args.lag is not None and args.lag != DEFAULT_LAG:
         raise UserError("--lag applies to --method smoother only")
+    if args.theta0_sigma_deg is not None and args.theta0_deg is None:
+        raise UserError("--theta0-sigma-deg applies to a given start (--theta0-deg); without "
+                        "one the start is found from the images, with its own sigma")
     if args.method != "chain":
-        if not (math.isfinite(args.theta0_sigma_deg) and args.theta0_sigma_deg > 0.0):
-            raise UserError(f"--theta0-sigma-deg {args.theta0_sigma_deg!r}: expected a "
-                            "positive number of degrees")
+        if args.theta0_deg is not None:
+            sigma = 0.1 if args.theta0_sigma_deg is None else args.theta0_sigma_deg
+            if not (math.isfinite(sigma) and sigma > 0.0):
+                raise UserError(f"--theta0-sigma-deg {sigma!r}: expected a positive number "
+                                "of degrees")
+            options["theta0_sigma"] = math.radians(sigma)
         if not (math.isfinite(args.noise_px) and args.noise_px > 0.0):
             raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of "
                             "pixels")
-        options["theta0_sigma"] = math.radians(args.theta0_sigma_deg)
         options["vision"] = args.vision
         options["threshold_px"] = args.noise_px
     elif args.vision is not None:
@@ -170,6 +177,12 @@ def _run_one(args: argparse.Namespace, folder: str) -> str:
         written = [*written, robot_path]
     lines = [f"{args.method}: {result.n_frames} frames, {sequence.n_segments} segments -> "
              f"{args.out} ({', '.join(p.name for p in written)})"]
+    if result.start is not None:
+        found = result.start
+        lines.append(f"start found from the first {found.seconds:.2f} s ({found.n_frames} "
+                     "frames): " + ", ".join(
+                         f"{math.degrees(t):.2f} +/- {math.degrees(s):.2f}"
+                         for t, s in zip(found.theta0, found.sigma0, strict=True)) + " deg")
     if args.calibrate and result.calibration_sigmas is not None:
         for i, (seg, sig) in enumerate(zip(result.robot.segments, result.calibration_sigmas,
                                            strict=True)):

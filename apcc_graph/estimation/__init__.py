@@ -4,6 +4,8 @@
   result every estimator returns (:mod:`~apcc_graph.estimation.result`) and many sequences at
   once, in process or on Dask (:mod:`~apcc_graph.estimation.many`).
 - The paper's chain, frame by frame and segment by segment (:mod:`~apcc_graph.estimation.chain`).
+- The start when nobody gives it: hypotheses refined by the batch over the first second,
+  reported undetermined when the images cannot tell (:mod:`~apcc_graph.estimation.start_search`).
 - Graph building shared by the batch and the smoothers: the options
   (:mod:`~apcc_graph.estimation.options`), the projection-model terms
   (:mod:`~apcc_graph.estimation.graph`), the epipolar graph

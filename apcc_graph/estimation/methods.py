@@ -6,9 +6,10 @@ import warnings
 from os import PathLike
 from typing import Any
 
+import numpy as np
 from numpy.typing import ArrayLike
 
-from apcc_graph.estimation.result import Estimate
+from apcc_graph.estimation.result import Estimate, StartReport
 from apcc_graph.model.sequence import Sequence
 
 METHODS = ("chain", "batch", "smoother")
@@ -48,10 +49,13 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         sequence: the sequence; ground-truth columns are never read.
         method: ``"chain"`` (the paper's front end), ``"batch"`` (factor graph, whole
             sequence) or ``"smoother"`` (fixed-lag smoother, frame by frame).
-        theta0: ``(S,)`` starting configuration in radians (default straight).
+        theta0: ``(S,)`` starting configuration in radians; ``None`` (default) when it is
+            unknown: the estimator then finds it from the first second of images, or from
+            more if the robot barely moved (:mod:`~apcc_graph.estimation.start_search`), and
+            the estimate's ``start`` says where and how well.
         theta0_sigma: standard deviation of the prior on ``theta0`` (radians; default
             :class:`~apcc_graph.estimation.options.GraphOptions`' 0.1 deg); batch and
-            smoother only (the chain starts exactly at ``theta0``).
+            smoother only (the chain starts exactly at ``theta0``), and only with ``theta0``.
         vision: ``"projection"`` (default: every observation once, each track's point
             eliminated) or ``"epipolar"`` (frame pairs, for comparison); batch and smoother
             only.
@@ -66,7 +70,10 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         TypeError: ``sequence`` is not a :class:`~apcc_graph.model.sequence.Sequence` (a path
             must be loaded first, with ``apcc_graph.load_sequence``).
         ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
-            ``theta_max`` (radians); a sequence without a single observation.
+            ``theta_max`` (radians); a sequence without a single observation;
+            ``theta0_sigma`` without ``theta0``.
+        UnknownStartError: (a ``ValueError``) no ``theta0``, and the recording never tells
+            the start (the robot never moved enough; the message says which segment).
 
     Warns:
         ObservationWarning: a camera observed nothing in the whole sequence (named).
@@ -77,8 +84,16 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         raise TypeError(f"sequence: expected a Sequence, got {type(sequence).__name__}{hint}")
     if method not in METHODS:
         raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
-    sequence.robot.configuration(theta0)
+    if theta0 is not None:
+        sequence.robot.configuration(theta0)
     check_observations(sequence)
+    start = None
+    if theta0 is None:
+        if theta0_sigma is not None:
+            raise ValueError("theta0_sigma without theta0: with an unknown start the search "
+                             "finds the start's uncertainty itself; give theta0 too, or "
+                             "neither")
+        theta0, theta0_sigma, start = _unknown_start(sequence, method, threshold_px, options)
     if method in ("batch", "smoother") and (theta0_sigma is not None or vision is not None
                                             or threshold_px is not None):
         from dataclasses import replace
@@ -97,6 +112,17 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         options["options"] = replace(options.get("options") or GraphOptions(), **changes)
     elif method == "chain" and vision not in (None, "epipolar"):
         raise ValueError(f"vision = {vision!r}: the chain is the epipolar 1-point front end")
+    result = _run(sequence, method, theta0, options)
+    if start is None:
+        return result
+    from dataclasses import replace as with_start
+
+    return with_start(result, start=start)
+
+
+def _run(sequence: Sequence, method: str, theta0: ArrayLike, options: dict[str, Any]
+         ) -> Estimate:
+    """The estimator ``method`` from ``theta0``."""
     if method == "chain":
         from apcc_graph.estimation.chain import chain_estimate
 
@@ -110,3 +136,37 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
 
         return smoother_estimate(sequence, theta0=theta0, **options)
     raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
+
+
+def _unknown_start(sequence: Sequence, method: str, threshold_px: float | None,
+                   options: dict[str, Any]) -> tuple[Any, float | None, StartReport]:
+    """The start found from the data (:mod:`~apcc_graph.estimation.start_search`): the
+    configuration, the prior the estimator then holds it with, and the report.
+
+    The batch keeps the search's weak prior (vision alone, over the whole recording), so a
+    start the images tell at all is enough for it; the smoother (which holds the start with the
+    search's largest sigma) and the chain (which starts exactly there) cannot revisit it, so
+    they wait until the images tell it to :data:`~apcc_graph.estimation.start_search.FIRM_SIGMA`.
+    """
+    from dataclasses import replace
+
+    from apcc_graph.estimation.options import GraphOptions
+    from apcc_graph.estimation.start_search import (
+        FIRM_SIGMA,
+        MAX_SIGMA,
+        PRIOR_SIGMA,
+        start_from_data,
+    )
+
+    graph = options.get("options") or GraphOptions()
+    if threshold_px is not None:
+        graph = replace(graph, threshold_px=float(threshold_px))
+    search = start_from_data(sequence, options=graph,
+                             max_sigma=MAX_SIGMA if method == "batch" else FIRM_SIGMA)
+    if method == "batch":
+        sigma: float | None = PRIOR_SIGMA
+    elif method == "smoother":
+        sigma = float(np.nanmax(search.sigma0))
+    else:
+        sigma = None
+    return search.theta0, sigma, search.report()

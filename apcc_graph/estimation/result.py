@@ -12,6 +12,25 @@ from apcc_graph.model.robot import Robot
 
 
 @dataclass(frozen=True)
+class StartReport:
+    """Where an estimator found the robot to start, when it was not told.
+
+    Attributes:
+        theta0: ``(S,)`` the configuration at frame 0 (radians).
+        sigma0: ``(S,)`` its marginal standard deviations from the window searched (radians).
+        seconds: the length of that window (seconds).
+        n_frames: its frames.
+        hypotheses: starting hypotheses refined.
+    """
+
+    theta0: FloatArray
+    sigma0: FloatArray
+    seconds: float
+    n_frames: int
+    hypotheses: int
+
+
+@dataclass(frozen=True)
 class Estimate:
     """Estimated bending angles of a sequence.
 
@@ -28,6 +47,8 @@ class Estimate:
         calibration_sigmas: with self-calibration, ``(S, 2)`` marginal standard deviations
             of each segment's k and delta_max (radians); ``robot`` then holds the calibrated
             segments. ``None`` otherwise.
+        start: when no starting configuration was given, where the estimator found the
+            robot to start (:class:`StartReport`); ``None`` otherwise.
     """
 
     method: str
@@ -39,6 +60,7 @@ class Estimate:
     inliers: NDArray[np.int64]
     world_T_base: FloatArray | None = field(default=None, repr=False)
     calibration_sigmas: FloatArray | None = field(default=None, repr=False)
+    start: StartReport | None = field(default=None, repr=False)
 
     @property
     def n_frames(self) -> int:

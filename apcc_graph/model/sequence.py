@@ -308,6 +308,28 @@ class Sequence:
         base = None if self.world_T_base is None else self.world_T_base[frame]
         return FrameObservations(float(self.timestamps[frame]), tracks, base, bearings)
 
+    def head(self, n_frames: int) -> Sequence:
+        """The first ``n_frames`` frames (tracks, base poses, truth and images cut there).
+
+        Raises:
+            ValueError: ``n_frames`` not in ``1 .. F``.
+        """
+        if not 1 <= n_frames <= self.n_frames:
+            raise ValueError(f"Sequence.head: n_frames = {n_frames!r}: expected 1 to "
+                             f"{self.n_frames}")
+        tracks = {}
+        for cam, trk in self.tracks.items():
+            keep = trk.frames < n_frames
+            tracks[cam] = Tracks(trk.frames[keep], trk.track_ids[keep], trk.uv[keep])
+        images = {cam: {f: p for f, p in files.items() if f < n_frames}
+                  for cam, files in self.images.items()}
+
+        def cut(x: FloatArray | None) -> FloatArray | None:
+            return None if x is None else x[:n_frames]
+
+        return Sequence(self.robot, self.timestamps[:n_frames], tracks, cut(self.world_T_base),
+                        cut(self.thetas), cut(self.psis), images)
+
     def correspondences(self, cam: int, a: int, b: int) -> Correspondences:
         """The tracks camera ``cam`` saw in both frames a and b, as pixels and bearings."""
         rows_a, rows_b = self._rows(cam, a), self._rows(cam, b)

@@ -1,0 +1,245 @@
+"""Finding the robot's configuration without being told where it started.
+
+The tip cameras fix the absolute angles, not only their changes: a camera's translation between
+two frames depends on where on its arc the segment is, not only on how far it bent
+(docs/estimation.md, "Starting from an unknown shape"). How well they fix them depends on the
+motion: a segment that barely moves in the first second leaves its own absolute angle open.
+
+:func:`find_start` looks at the first ``seconds`` of a recording:
+
+1. **Hypotheses.** The first segment's angle at frame 0 is the worst determined, so the
+   hypotheses spread it over its range (straight and half its ``theta_max`` either way), the
+   outer segments straight. Each is propagated over the frames by the paper's chain (the
+   1-point solver, frame after frame).
+2. **Refinement.** Each propagated hypothesis starts the projection batch over those frames
+   (every observation once, each track's point eliminated, graduated non-convexity of the
+   outlier decisions), with only a weak prior on frame 0 (``prior_sigma``, 30 degrees
+   around straight by default: in effect vision alone).
+3. **Scoring.** Each solution is scored by the truncated quadratic of its observations'
+   whitened reprojection errors, each track's point triangulated at the solution's angles:
+   the robust cost the batch minimises, independent of where it started. The lowest wins.
+4. **Deciding.** The winner's marginal sigmas of frame 0 say whether the data told: a segment
+   above ``max_sigma`` (15 degrees by default, half the weak prior: the images must carry at
+   least three quarters of the information) is *undetermined* (the robot barely moved, or its
+   camera saw too few tracks), and so is a second solution far from the winner (more than 3
+   of its sigmas) whose cost is within ``ambiguity`` of it. An undetermined search says why
+   in its ``reason`` instead of guessing. The sigmas are honest: on the start benchmark they
+   are the Cramér-Rao bound of the window to a few percent.
+
+:func:`start_from_data` grows the window (1 s, 2 s, 4 s, ... up to the whole recording) until
+the start is determined, so a robot that stands still at first is found once it moves; a
+recording in which it never moves enough raises :class:`UnknownStartError`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from apcc_graph.estimation.batch_solve import build_terms, projection_solve
+from apcc_graph.estimation.chain import chain_estimate
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.result import StartReport
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence
+
+START_SECONDS = 1.0
+"""The first window of the search (seconds)."""
+PRIOR_SIGMA = math.radians(30.0)
+"""The weak prior on frame 0 during the search, around straight (radians)."""
+MAX_SIGMA = 0.5 * PRIOR_SIGMA
+"""A start whose sigma exceeds this on any segment is undetermined (radians): below it, the
+images carry at least three quarters of the start's information, the weak prior the rest."""
+FIRM_SIGMA = math.radians(5.0)
+"""The sigma the smoother and the chain wait for before they start (radians): unlike the
+batch, they cannot revisit the start once they have passed it."""
+AMBIGUITY = 9.0
+"""Two distant solutions whose robust costs differ by less than this are ambiguous."""
+MIN_OBSERVATIONS = 20
+"""A camera with fewer observations in the window counts as having seen nothing."""
+
+
+class UnknownStartError(ValueError):
+    """The recording does not tell where the robot started (it never moved enough, or the
+    cameras saw too little); pass the starting configuration instead."""
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One refined hypothesis: where it started, where it ended, its robust cost."""
+
+    start: FloatArray  # (S,) frame 0's angles it started from (radians)
+    thetas: FloatArray  # (F, S) the refined angles of the window (radians)
+    sigmas: FloatArray  # (F, S) their marginal sigmas (radians; NaN where singular)
+    cost: float  # truncated quadratic of the whitened reprojection errors
+
+
+@dataclass(frozen=True)
+class StartSearch:
+    """What :func:`find_start` found over a window of frames.
+
+    Attributes:
+        n_frames: frames in the window (from frame 0).
+        seconds: the window's length (seconds).
+        hypotheses: every refined hypothesis, the winner first.
+        determined: whether the data told the start.
+        reason: why not (empty when determined).
+    """
+
+    n_frames: int
+    seconds: float
+    hypotheses: tuple[Hypothesis, ...]
+    determined: bool
+    reason: str
+
+    @property
+    def thetas(self) -> FloatArray:
+        """``(F, S)`` the winner's angles over the window (radians)."""
+        return self.hypotheses[0].thetas
+
+    @property
+    def sigmas(self) -> FloatArray:
+        """``(F, S)`` the winner's marginal sigmas (radians)."""
+        return self.hypotheses[0].sigmas
+
+    @property
+    def theta0(self) -> FloatArray:
+        """``(S,)`` the winner's configuration at frame 0 (radians)."""
+        return self.thetas[0]
+
+    @property
+    def sigma0(self) -> FloatArray:
+        """``(S,)`` its marginal sigmas (radians; NaN where the data left it singular)."""
+        return self.sigmas[0]
+
+    def report(self) -> StartReport:
+        """The summary an :class:`~apcc_graph.estimation.result.Estimate` carries."""
+        return StartReport(self.theta0.copy(), self.sigma0.copy(), self.seconds, self.n_frames,
+                           len(self.hypotheses))
+
+
+def start_hypotheses(robot: Robot) -> FloatArray:
+    """``(H, S)`` starting configurations tried (radians): the first segment straight and at
+    half its ``theta_max`` either way, the others straight."""
+    half = 0.5 * robot.segments[0].theta_max
+    starts = np.zeros((3, robot.n_segments))
+    starts[1:, 0] = (-half, half)
+    return starts
+
+
+def robust_cost(sequence: Sequence, thetas: FloatArray, options: GraphOptions) -> float:
+    """The truncated quadratic ``sum min(r^2, c^2)`` of every observation's whitened
+    reprojection error ``r`` (``c = options.inlier_sigmas``), each track's point triangulated
+    robustly at ``thetas`` (``(F, S)``, radians)."""
+    c2 = options.inlier_sigmas**2
+    total = 0.0
+    for terms in build_terms(sequence, options):
+        terms.measure(thetas, robust=True)
+        for norms in terms.norms:
+            total += float(np.sum(np.minimum(np.nan_to_num(norms, nan=math.inf) ** 2, c2)))
+    return total
+
+
+def _refine(sequence: Sequence, start: FloatArray, options: GraphOptions) -> Hypothesis:
+    """One hypothesis propagated by the chain and refined by the batch over the window."""
+    chain = chain_estimate(sequence, theta0=start, threshold_px=options.threshold_px)
+    straight = np.zeros(sequence.n_segments)
+    found = projection_solve(sequence, chain.thetas, straight, options)
+    return Hypothesis(start, found.thetas, found.sigmas,
+                      robust_cost(sequence, found.thetas, options))
+
+
+def find_start(sequence: Sequence, seconds: float = START_SECONDS,
+               options: GraphOptions | None = None, max_sigma: float = MAX_SIGMA,
+               prior_sigma: float = PRIOR_SIGMA, ambiguity: float = AMBIGUITY) -> StartSearch:
+    """The configuration over the first ``seconds`` of ``sequence``, without a start prior.
+
+    Args:
+        sequence: the recording (ground truth is never read).
+        seconds: the window, from the first frame's timestamp (at least two frames are used).
+        options: graph options (pixel noise, outlier threshold); the start prior is replaced by
+            ``prior_sigma`` around straight.
+        max_sigma: a start with a larger marginal sigma on any segment is undetermined
+            (radians).
+        prior_sigma: the weak prior on frame 0 (radians).
+        ambiguity: robust-cost margin under which a distant second solution makes the start
+            ambiguous.
+
+    Returns:
+        The search; ``determined`` says whether to trust it, ``reason`` why not.
+
+    Raises:
+        ValueError: ``seconds``, ``max_sigma`` or ``prior_sigma`` not positive.
+    """
+    for name, value in (("seconds", seconds), ("max_sigma", max_sigma),
+                        ("prior_sigma", prior_sigma)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"find_start: {name} = {value!r}: expected a positive number")
+    ts = sequence.timestamps
+    n_frames = max(2, int(np.searchsorted(ts, ts[0] + seconds, side="right")))
+    window = sequence.head(min(n_frames, sequence.n_frames))
+    span = float(window.timestamps[-1] - window.timestamps[0])
+    options = replace(GraphOptions() if options is None else options, theta0_sigma=prior_sigma)
+    if window.n_frames < 2:
+        empty = Hypothesis(np.zeros(sequence.n_segments), np.zeros((1, sequence.n_segments)),
+                           np.full((1, sequence.n_segments), np.nan), math.inf)
+        return StartSearch(1, 0.0, (empty,), False, "a single frame shows no motion")
+    refined = sorted((_refine(window, start, options)
+                      for start in start_hypotheses(sequence.robot)), key=lambda h: h.cost)
+    reason = _undetermined(window, refined, max_sigma, ambiguity)
+    return StartSearch(window.n_frames, span, tuple(refined), not reason, reason)
+
+
+def _undetermined(window: Sequence, refined: list[Hypothesis], max_sigma: float,
+                  ambiguity: float) -> str:
+    """Why the window does not tell the start ('' when it does)."""
+    best = refined[0]
+    sigma0 = best.sigmas[0]
+    span = float(window.timestamps[-1] - window.timestamps[0])
+    seen = {cam: len(window.tracks[cam]) if cam in window.tracks else 0
+            for cam in window.robot.camera_segments}
+    few = [f"cam_{cam + 1} ({n})" for cam, n in seen.items() if n < MIN_OBSERVATIONS]
+    open_ = [j for j, s in enumerate(sigma0) if not (math.isfinite(s) and s <= max_sigma)]
+    if open_:
+        moved = np.degrees(np.ptp(best.thetas, axis=0))
+        sigma_text = ["undetermined" if not math.isfinite(s) else f"{math.degrees(s):.1f} deg"
+                      for s in sigma0]
+        shown = "; ".join(f"segment {j + 1}: sigma {sigma_text[j]}, moved {moved[j]:.1f} deg"
+                          for j in open_)
+        why = (f"cameras with too few observations: {', '.join(few)}" if few else
+               "the robot barely moved")
+        return (f"the first {span:.2f} s do not tell the start ({shown}; limit "
+                f"{math.degrees(max_sigma):.1f} deg): {why}")
+    for other in refined[1:]:
+        far = np.abs(other.thetas[0] - best.thetas[0]) > 3.0 * sigma0
+        if np.any(far) and other.cost - best.cost < ambiguity:
+            a, b = (", ".join(f"{v:+.1f}" for v in np.degrees(h.thetas[0]))
+                    for h in (best, other))
+            return (f"the first {span:.2f} s fit two starts about equally well ({a} deg, cost "
+                    f"{best.cost:.1f}; {b} deg, cost {other.cost:.1f})")
+    return ""
+
+
+def start_from_data(sequence: Sequence, seconds: float = START_SECONDS,
+                    options: GraphOptions | None = None, max_sigma: float = MAX_SIGMA,
+                    prior_sigma: float = PRIOR_SIGMA) -> StartSearch:
+    """:func:`find_start` over 1, 2, 4, ... times ``seconds`` until the start is determined.
+
+    Raises:
+        UnknownStartError: not determined even over the whole recording (the message says
+            why, and how to give the start instead).
+    """
+    window = seconds
+    while True:
+        search = find_start(sequence, window, options, max_sigma, prior_sigma)
+        if search.determined:
+            return search
+        if search.n_frames >= sequence.n_frames:
+            raise UnknownStartError(
+                f"{search.reason}; that is the whole recording ({sequence.n_frames} frames). "
+                "Give the starting configuration (theta0, or --theta0-deg on the command "
+                "line) to estimate it anyway")
+        window *= 2.0
