@@ -297,3 +297,34 @@ def test_unknown_segment_models_raise_the_bound(robot: Robot) -> None:
     # A tight prior on the models gives back the known-model bound.
     tight = sequence_bound(sim, 1.0, PRIOR, calibration_sigmas=(1e-9, 1e-9))
     np.testing.assert_allclose(tight.sigmas, known.sigmas, rtol=1e-4)
+
+
+def test_spatial_information_holds_the_planar_one(robot: Robot) -> None:
+    """On a planar recording, the spatial information's block of the u components is the
+    planar information (u is theta there, the points are eliminated the same way), and the
+    v components (out of the plane) are determined too."""
+    sim = simulate(robot, 10, noise_px=1.0, seed=5, scene="room", n_points=400)
+    planar = fisher_information(sim, 1.0, PRIOR)
+    spatial = fisher_information(sim, 1.0, PRIOR, spatial=True)
+    assert spatial.shape == (60, 60)
+    np.testing.assert_allclose(spatial, spatial.T, rtol=0, atol=1e-12 * np.abs(spatial).max())
+    u = np.arange(0, 60, 2)
+    np.testing.assert_allclose(spatial[np.ix_(u, u)], planar, rtol=0,
+                               atol=1e-9 * np.abs(planar).max())
+    bound = sequence_bound(sim, 1.0, PRIOR, spatial=True)
+    assert bound.components is not None and bound.components.shape == (10, 6)
+    assert np.all(np.isfinite(bound.components))
+    pairs = bound.components.reshape(10, 3, 2)
+    np.testing.assert_allclose(bound.sigmas, np.sqrt(np.sum(pairs**2, axis=-1)))
+    # more unknowns, never a smaller bound on u than on the planar angle
+    assert np.all(pairs[..., 0] >= sequence_bound(sim, 1.0, PRIOR).sigmas * (1 - 1e-9))
+
+
+def test_spatial_bound_of_a_spatial_recording(robot: Robot) -> None:
+    sim = simulate(robot, 10, noise_px=1.0, seed=6, scene="room", n_points=400, spatial=True)
+    bound = sequence_bound(sim, 1.0, PRIOR, spatial=True)
+    assert np.all(np.isfinite(bound.sigmas)) and np.all(bound.sigmas > 0)
+    loose = sequence_bound(sim, 1.0, 10 * PRIOR, spatial=True)
+    assert np.all(loose.sigmas >= bound.sigmas * (1 - 1e-9))
+    with pytest.raises(ValueError, match="spatial"):
+        fisher_information(sim, 1.0, PRIOR, calibration_sigmas=(0.05, 0.1), spatial=True)

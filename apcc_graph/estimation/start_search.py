@@ -134,12 +134,13 @@ def robust_cost(sequence: Sequence, thetas: FloatArray, options: GraphOptions) -
     """The truncated quadratic ``sum min(r^2, c^2)`` of every observation's whitened
     reprojection error ``r`` (``c = options.inlier_sigmas``), each track's point triangulated
     robustly at ``thetas`` (``(F, S)``, radians)."""
-    c2 = options.inlier_sigmas**2
+    c = options.inlier_sigmas
     total = 0.0
     for terms in build_terms(sequence, options):
         terms.measure(thetas, robust=True)
-        for norms in terms.norms:
-            total += float(np.sum(np.minimum(np.nan_to_num(norms, nan=math.inf) ** 2, c2)))
+        for norms in terms.norms:  # NaN or inf (behind the camera) count as outliers
+            capped = np.where(np.isfinite(norms), np.minimum(np.abs(norms), c), c)
+            total += float(np.sum(capped**2))
     return total
 
 

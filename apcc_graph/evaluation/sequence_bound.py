@@ -26,6 +26,7 @@ import scipy.linalg
 from numpy.typing import NDArray
 
 from apcc_graph.model.arrays import FloatArray, rms, window_rms
+from apcc_graph.model.bending import bending_vector
 from apcc_graph.simulation.simulator import Simulation
 from factors.camera_chain import CameraChain
 from factors.projection import build_observations, chunk_tracks
@@ -43,11 +44,14 @@ class SequenceBound:
         theta0_sigma: the start prior it was computed with (radians), or ``None``.
         calibration: with unknown segment models, ``(S, 2)`` the bound of each segment's k and
             delta_max (radians); ``None`` when the models were known.
+        components: for a spatial robot, ``(F, 2 S)`` the bound of each bending vector's ``u``
+            and ``v`` (radians), ``sigmas`` being that of its error norm; ``None`` otherwise.
     """
 
     sigmas: FloatArray
     theta0_sigma: float | None
     calibration: FloatArray | None = None
+    components: FloatArray | None = None
 
     def rms(self, frames: slice | None = None) -> FloatArray:
         """``(S,)`` RMS of the per-angle bound over ``frames`` (default all), radians: the
@@ -63,8 +67,14 @@ def fisher_information(simulation: Simulation, noise_px: float,
                        theta0_sigma: float | None = math.radians(0.1),
                        max_track_frames: int | None = None,
                        last_frame: int | None = None,
-                       calibration_sigmas: tuple[float, float] | None = None) -> FloatArray:
+                       calibration_sigmas: tuple[float, float] | None = None,
+                       spatial: bool = False) -> FloatArray:
     """The ``(F S, F S)`` Fisher information of all angles, index ``f * S + j``.
+
+    With ``spatial`` the unknowns are every segment's bending vector ``(u, v) = theta (cos psi,
+    sin psi)`` (:mod:`apcc_graph.model.bending`): the matrix is ``(2 F S)`` square, ``u`` of
+    segment j at frame f at ``2 (f S + j)`` and ``v`` after it, and ``theta0_sigma`` is the
+    prior of both components of frame 0's bending vectors.
 
     With ``calibration_sigmas`` the segments' k and delta_max are unknowns too (the bound of a
     self-calibrating estimator): the matrix is ``(F S + 2 S)`` square, the calibration of
@@ -90,6 +100,12 @@ def fisher_information(simulation: Simulation, noise_px: float,
     assert seq.thetas is not None
     n_frames, S = seq.n_frames, seq.n_segments
     calibrate = calibration_sigmas is not None
+    if spatial and calibrate:
+        raise ValueError("fisher_information: spatial=True with calibration_sigmas is not "
+                         "supported")
+    truth = true_parameters(simulation, spatial)
+    P = 2 if spatial else 1
+    S *= P  # parameters per frame from here on
     D0 = n_frames * S
     info = np.zeros((D0 + (2 * S if calibrate else 0),) * 2)
     for cam in seq.tracks:
@@ -109,12 +125,12 @@ def fisher_information(simulation: Simulation, noise_px: float,
         order = np.lexsort((tracks.frames[inlier], ids[inlier]))
         landmark[obs.tracks] = simulation.landmarks[cam][inlier][order]
         chain = CameraChain(tuple(robot.segments[:cam + 1]), camera.tip_T_cam,
-                            seq.world_T_base, seq.psis)
-        n = cam + 1
+                            seq.world_T_base, seq.psis, spatial=spatial)
+        n = chain.n_parameters
         for chunk in chunk_tracks(obs):
             part = obs.select(chunk)
             first, last = int(part.frames.min()), int(part.frames.max())
-            out = reduced_system(part, chain, seq.thetas[first:last + 1], first,
+            out = reduced_system(part, chain, truth[first:last + 1], first,
                                  np.ones(len(part)), simulation.points_world[landmark[chunk]],
                                  refine_points=False, calibration=calibrate)
             index = ((np.arange(first, last + 1) * S)[:, None] + np.arange(n)).ravel()
@@ -129,10 +145,23 @@ def fisher_information(simulation: Simulation, noise_px: float,
     return info
 
 
+def true_parameters(simulation: Simulation, spatial: bool = False) -> FloatArray:
+    """``(F, S)`` true angles, or with ``spatial`` ``(F, 2 S)`` true bending vectors
+    ``(u_0, v_0, u_1, ...)`` (radians)."""
+    seq = simulation.sequence
+    assert seq.thetas is not None
+    if not spatial:
+        return seq.thetas
+    psis = np.zeros_like(seq.thetas) if seq.psis is None else seq.psis
+    u, v = bending_vector(seq.thetas, psis)
+    return np.stack([u, v], axis=-1).reshape(seq.n_frames, -1)
+
+
 def sequence_bound(simulation: Simulation, noise_px: float,
                    theta0_sigma: float | None = math.radians(0.1),
                    max_track_frames: int | None = None,
-                   calibration_sigmas: tuple[float, float] | None = None) -> SequenceBound:
+                   calibration_sigmas: tuple[float, float] | None = None,
+                   spatial: bool = False) -> SequenceBound:
     """The per-frame, per-angle Cramer-Rao bound of a simulation (radians).
 
     Args: as :func:`fisher_information`; with ``calibration_sigmas`` the segment models are
@@ -140,11 +169,26 @@ def sequence_bound(simulation: Simulation, noise_px: float,
 
     Returns:
         The bound; angles the data leave undetermined (a frame no camera saw, no start prior
-        and no motion) are ``inf``.
+        and no motion) are ``inf``. With ``spatial``, ``sigmas`` is the bound of each bending
+        vector's error norm, ``sqrt(sigma_u^2 + sigma_v^2)`` per segment, and
+        ``components`` holds ``(sigma_u, sigma_v)`` per segment, ``(F, 2 S)``.
     """
     info = fisher_information(simulation, noise_px, theta0_sigma, max_track_frames,
-                              calibration_sigmas=calibration_sigmas)
+                              calibration_sigmas=calibration_sigmas, spatial=spatial)
     n_frames, S = simulation.sequence.n_frames, simulation.sequence.n_segments
+    if spatial:
+        components = _bound_sigmas(info)
+        pairs = components.reshape(n_frames, S, 2)
+        return SequenceBound(np.sqrt(np.sum(pairs**2, axis=-1)), theta0_sigma, None,
+                             components.reshape(n_frames, 2 * S))
+    sigmas = _bound_sigmas(info)
+    D0 = n_frames * S
+    calibration = None if calibration_sigmas is None else sigmas[D0:].reshape(S, 2)
+    return SequenceBound(sigmas[:D0].reshape(n_frames, S), theta0_sigma, calibration)
+
+
+def _bound_sigmas(info: FloatArray) -> FloatArray:
+    """Square roots of the diagonal of ``info^-1``; ``inf`` along its null space."""
     try:
         U = scipy.linalg.cholesky(info, lower=False, check_finite=False)
         U_inv = scipy.linalg.solve_triangular(U, np.eye(len(info)), check_finite=False)
@@ -156,10 +200,7 @@ def sequence_bound(simulation: Simulation, noise_px: float,
         variance = (vec[:, good] ** 2) @ (1.0 / lam[good])
         null = np.sum(vec[:, ~good] ** 2, axis=1) > 1e-9
         variance[null] = np.inf
-    sigmas = np.sqrt(variance)
-    D0 = n_frames * S
-    calibration = None if calibration_sigmas is None else sigmas[D0:].reshape(S, 2)
-    return SequenceBound(sigmas[:D0].reshape(n_frames, S), theta0_sigma, calibration)
+    return np.sqrt(variance)
 
 
 @dataclass(frozen=True)
