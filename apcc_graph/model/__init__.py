@@ -1,8 +1,10 @@
 """The robot model: the maths of a continuum robot, with no files and no estimation.
 
 Holds a segment and its APCC 2L-5R parameters (:mod:`~apcc_graph.model.segment`), the
-vectorised segment transforms and their derivatives (:mod:`~apcc_graph.model.kinematics`), the
-same for one scalar angle, the factors' fast path (:mod:`~apcc_graph.model.scalar_kinematics`),
+vectorised segment transforms and their derivatives (:mod:`~apcc_graph.model.kinematics`), a
+spatial segment's bend as one vector, smooth through straight (:mod:`~apcc_graph.model.bending`),
+the same for one scalar angle, the factors' fast path
+(:mod:`~apcc_graph.model.scalar_kinematics`),
 the chain built joint by joint, for drawing (:mod:`~apcc_graph.model.joint_chain`), a tip camera
 (:mod:`~apcc_graph.model.camera`), the robot as a chain of segments with optional tip cameras
 (:mod:`~apcc_graph.model.robot`), the in-memory recording every layer above reads: tracks per
