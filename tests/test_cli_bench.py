@@ -97,3 +97,24 @@ def test_bench_selfcal_small_run(capsys) -> None:
     found = [ln for ln in lines if ln.strip().startswith("seed 1 segment")]
     assert len(found) == 3 and all("+/-" in ln for ln in found)
     assert main(["bench", "selfcal", "--outliers", "1.5"]) == 1
+
+
+def test_bench_spatial_solver_small_run(capsys) -> None:
+    assert main(["bench", "spatial-solver", "--cases", "30", "--trials", "3", "--seed", "2"]) == 0
+    text = capsys.readouterr().out
+    found, cases = (int(v) for v in re.search(r"true bend among the roots in (\d+) of (\d+)",
+                                               text).groups())
+    assert cases == 30 and found >= 29
+    rows = {}
+    for method in ("two_point_ransac", "cv2.findEssentialMat RANSAC", "cv2 RANSAC + recoverPose"):
+        line = next(ln for ln in text.splitlines() if ln.strip().startswith(method))
+        cells = re.search(r"([\d.]+) ms\s+(\S+)(?: deg)?\s+([\d.]+)x\s+(\d+)\s+(\S+)$", line)
+        rows[method] = cells.groups()
+    ours = rows["two_point_ransac"]
+    assert ours[2] == "1.0" and float(ours[0]) > 0.0
+    # Noise of 0.5 px: ours is within a degree of the truth; OpenCV's error is a number (its
+    # twisted-pair flips are counted in the last column).
+    assert float(ours[1]) < 1.0 and ours[4] == "0"
+    assert float(rows["cv2 RANSAC + recoverPose"][1]) >= 0.0
+    assert re.search(r"speed: cv2.findEssentialMat / two_point_ransac = [\d.]+x", text)
+    assert re.search(r"minimal solver: median \d+ us per two_point call \(30 calls\)", text)

@@ -9,6 +9,13 @@ Modules (docs/estimation.md, "Two frames"):
 - :mod:`~apcc_graph.frontend.roots`: every root of that constraint (the solver's root finding);
 - :mod:`~apcc_graph.frontend.one_point`: the 1-point solver;
 - :mod:`~apcc_graph.frontend.ransac`: 1-point RANSAC and robust refinement of the angle;
+- :mod:`~apcc_graph.frontend.spatial_basis`: a spatial segment's epipolar constraint, exactly, in
+  its bending vector;
+- :mod:`~apcc_graph.frontend.eliminant`, :mod:`~apcc_graph.frontend.pair_roots`: eliminating the
+  bending-plane angle between two correspondences, and every root of what is left;
+- :mod:`~apcc_graph.frontend.two_point`: the 2-point solver of a spatial segment;
+- :mod:`~apcc_graph.frontend.spatial_ransac`: 2-point RANSAC and robust refinement of the
+  bending vector;
 - :mod:`~apcc_graph.frontend.tracking`: feature tracking from images with OpenCV.
 
 May import: :mod:`apcc_graph.model` and :mod:`apcc_graph.io` (tracking reads image folders and
@@ -17,5 +24,7 @@ writes track tables).
 
 from apcc_graph.frontend.one_point import one_point
 from apcc_graph.frontend.ransac import one_point_ransac
+from apcc_graph.frontend.spatial_ransac import two_point_ransac
+from apcc_graph.frontend.two_point import two_point
 
-__all__ = ["one_point", "one_point_ransac"]
+__all__ = ["one_point", "one_point_ransac", "two_point", "two_point_ransac"]
