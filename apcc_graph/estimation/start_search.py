@@ -40,6 +40,7 @@ import numpy as np
 
 from apcc_graph.estimation.batch_solve import build_terms, projection_solve
 from apcc_graph.estimation.chain import chain_estimate
+from apcc_graph.estimation.graph import CameraTerms
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import StartReport
 from apcc_graph.model.arrays import FloatArray
@@ -130,27 +131,30 @@ def start_hypotheses(robot: Robot) -> FloatArray:
     return starts
 
 
-def robust_cost(sequence: Sequence, thetas: FloatArray, options: GraphOptions) -> float:
+def robust_cost(terms: list[CameraTerms], thetas: FloatArray, inlier_sigmas: float) -> float:
     """The truncated quadratic ``sum min(r^2, c^2)`` of every observation's whitened
-    reprojection error ``r`` (``c = options.inlier_sigmas``), each track's point triangulated
-    robustly at ``thetas`` (``(F, S)``, radians)."""
-    c = options.inlier_sigmas
+    reprojection error ``r`` (``c = inlier_sigmas``) in the projection ``terms`` of a
+    window (:func:`~apcc_graph.estimation.batch_solve.build_terms`), each track's point
+    triangulated robustly at ``thetas`` (``(F, S)``, radians)."""
+    c = inlier_sigmas
     total = 0.0
-    for terms in build_terms(sequence, options):
-        terms.measure(thetas, robust=True)
-        for norms in terms.norms:  # NaN or inf (behind the camera) count as outliers
+    for terms_of_camera in terms:
+        terms_of_camera.measure(thetas, robust=True)
+        for norms in terms_of_camera.norms:  # NaN or inf (behind the camera) count as outliers
             capped = np.where(np.isfinite(norms), np.minimum(np.abs(norms), c), c)
             total += float(np.sum(capped**2))
     return total
 
 
-def _refine(sequence: Sequence, start: FloatArray, options: GraphOptions) -> Hypothesis:
-    """One hypothesis propagated by the chain and refined by the batch over the window."""
+def _refine(sequence: Sequence, start: FloatArray, options: GraphOptions,
+            terms: list[CameraTerms]) -> Hypothesis:
+    """One hypothesis propagated by the chain and refined by the batch over the window,
+    scored on the window's ``terms`` (built once for every hypothesis)."""
     chain = chain_estimate(sequence, theta0=start, threshold_px=options.threshold_px)
     straight = np.zeros(sequence.n_segments)
     found = projection_solve(sequence, chain.thetas, straight, options)
     return Hypothesis(start, found.thetas, found.sigmas,
-                      robust_cost(sequence, found.thetas, options))
+                      robust_cost(terms, found.thetas, options.inlier_sigmas))
 
 
 def find_start(sequence: Sequence, seconds: float = START_SECONDS,
@@ -188,7 +192,8 @@ def find_start(sequence: Sequence, seconds: float = START_SECONDS,
         empty = Hypothesis(np.zeros(sequence.n_segments), np.zeros((1, sequence.n_segments)),
                            np.full((1, sequence.n_segments), np.nan), math.inf)
         return StartSearch(1, 0.0, (empty,), False, "a single frame shows no motion")
-    refined = sorted((_refine(window, start, options)
+    terms = build_terms(window, options)
+    refined = sorted((_refine(window, start, options, terms)
                       for start in start_hypotheses(sequence.robot)), key=lambda h: h.cost)
     reason = _undetermined(window, refined, max_sigma, ambiguity)
     return StartSearch(window.n_frames, span, tuple(refined), not reason, reason)
