@@ -87,7 +87,8 @@ class ProjectionFactor:
     Args:
         obs: the tracks (rows of a contiguous range of frames).
         chain: the camera's chain.
-        n_segments: S, the dimension of each frame's angle vector.
+        n_segments: the dimension of each frame's vector: S angles, or 2 S bending-vector
+            components for a spatial chain.
         weights: ``(N,)`` row weights; the array is used in place, so an estimator can
             update the robust decisions between solves.
         calibrate: also depend on the ``(k, delta_max)`` variables (:func:`calibration_key`)
@@ -107,7 +108,9 @@ class ProjectionFactor:
         self.first = int(obs.frames.min())
         self.last = int(obs.frames.max())
         self.frames = np.arange(self.first, self.last + 1)
-        self.n = len(chain.segments)
+        if calibrate and chain.spatial:
+            raise ValueError("self-calibration of a spatial robot is not supported")
+        self.n = chain.n_parameters  # columns of a frame's vector this camera depends on
         self.calibrate = bool(calibrate)
         self.frame_keys = [frame_key(int(f)) for f in self.frames]
         self.calibration_keys = ([calibration_key(j) for j in range(self.n)]

@@ -118,3 +118,25 @@ def test_bench_spatial_solver_small_run(capsys) -> None:
     assert float(rows["cv2 RANSAC + recoverPose"][1]) >= 0.0
     assert re.search(r"speed: cv2.findEssentialMat / two_point_ransac = [\d.]+x", text)
     assert re.search(r"minimal solver: median \d+ us per two_point call \(30 calls\)", text)
+
+
+def test_bench_spatial_small_run(capsys) -> None:
+    assert main(["bench", "spatial", "--frames", "45", "--seeds", "3", "--outliers", "0"]) == 0
+    text = capsys.readouterr().out
+    lines = text.splitlines()
+
+    def row(label: str, after: str) -> list[float]:
+        start = next(i for i, ln in enumerate(lines) if ln.startswith(after))
+        line = next(ln for ln in lines[start:] if ln.strip().startswith(label))
+        return [float(v) for v in line.split()[-3:]]
+
+    bound = row("bound, RMS over frames", "spatial robot")
+    assert all(0.0 < b < 1.0 for b in bound)  # degrees
+    chain = row("RMS / bound, median", "chain")
+    batch = row("RMS / bound, median", "batch")
+    assert max(batch) < 2.0 and max(chain) > max(batch)
+    honest = row("mean (error / sigma)^2", "batch")
+    assert all(0.05 < v < 5.0 for v in honest)
+    assert re.search(r"batch: every seed and segment within 2x of the bound: (yes|NO)", text)
+    assert main(["bench", "spatial", "--methods", "smoother"]) == 1
+    assert main(["bench", "spatial", "--outliers", "1.5"]) == 1

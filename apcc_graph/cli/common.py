@@ -15,7 +15,7 @@ import argparse
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -188,8 +188,10 @@ def int_list(text: str, option: str) -> list[int]:
     return values
 
 
-def truth_for(estimate: str, thetas: np.ndarray, truth: str) -> np.ndarray:
-    """The ground-truth angles of sequence folder ``truth``, checked against an estimate's."""
+def truth_for(estimate: str, thetas: np.ndarray, truth: str, psis: bool = False
+              ) -> Any:
+    """The ground-truth angles of sequence folder ``truth``, checked against an estimate's;
+    with ``psis``, the pair ``(thetas, psis)`` (``psis`` ``None`` for a planar truth)."""
     from apcc_graph.io import load_sequence
 
     seq = load_sequence(truth)
@@ -198,4 +200,4 @@ def truth_for(estimate: str, thetas: np.ndarray, truth: str) -> np.ndarray:
     if seq.thetas.shape != thetas.shape:
         raise UserError(f"{estimate}: {thetas.shape[0]} frames x {thetas.shape[1]} segments, "
                         f"but {truth} has {seq.thetas.shape[0]} x {seq.thetas.shape[1]}")
-    return seq.thetas
+    return (seq.thetas, seq.psis) if psis else seq.thetas

@@ -51,6 +51,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     est.add_argument("--theta0-sigma-deg", type=float, default=None,
                      help="how well --theta0-deg is known: standard deviation of its prior, "
                      "degrees (default: 0.1)")
+    est.add_argument("--spatial", action="store_true",
+                     help="the robot bends in 3-D: estimate each segment's bending plane psi "
+                     "too (theta.csv gains psi_<i> and psi_sigma_<i>); --method batch or chain, "
+                     "with --theta0-deg (and --psi0-deg)")
+    est.add_argument("--psi0-deg", default=None,
+                     help="with --spatial: the bending planes at the start, degrees, one per "
+                     "segment (default: 0); write --psi0-deg=-90,0,45 when the first is "
+                     "negative")
     est.add_argument("--noise-px", type=float, default=1.0,
                      help="pixel noise of the tracks, standard deviation per coordinate "
                      "(default: %(default)s); sets the outlier threshold and the sigmas")
@@ -95,9 +103,41 @@ def _theta0(text: str | None, robot: Robot) -> np.ndarray | None:
 DEFAULT_LAG = 1.0
 
 
+def _psi0(text: str | None, n_segments: int | None) -> np.ndarray | None:
+    """``--psi0-deg`` in radians: finite angles, one per segment when ``n_segments`` is
+    known; ``None`` when not given."""
+    if text is None:
+        return None
+    values = degree_list(text, "--psi0-deg")
+    if not all(math.isfinite(v) for v in values) or (n_segments is not None
+                                                     and len(values) != n_segments):
+        count = "one per segment" if n_segments is None else f"{n_segments}, one per segment"
+        raise UserError(f"--psi0-deg {text!r}: expected finite angles in degrees ({count})")
+    return np.radians(values)
+
+
+def _spatial_options(args: argparse.Namespace) -> dict:
+    """``--spatial`` and ``--psi0-deg``, checked against the other options."""
+    if args.psi0_deg is not None and not args.spatial:
+        raise UserError("--psi0-deg applies to --spatial only")
+    if not args.spatial:
+        return {}
+    if args.method == "smoother":
+        raise UserError("--spatial: the smoother does not estimate bending planes yet; use "
+                        "--method batch or chain")
+    if args.theta0_deg is None:
+        raise UserError("--spatial needs the start: give --theta0-deg (and --psi0-deg unless "
+                        "the bending planes start at 0); the search for an unknown start "
+                        "covers planar robots only")
+    if args.vision == "epipolar" or args.calibrate:
+        raise UserError("--spatial runs the projection model without self-calibration: drop "
+                        "--vision epipolar and --calibrate")
+    return {"spatial": True}
+
+
 def _options(args: argparse.Namespace) -> dict:
     """The estimator's keyword arguments from the command line, checked."""
-    options: dict = {"progress": True}
+    options: dict = {"progress": True, **_spatial_options(args)}
     if args.method == "smoother":
         if not (args.lag > 0.0 and math.isfinite(args.lag)):
             raise UserError(f"--lag {args.lag!r}: expected a positive number of seconds")
@@ -149,6 +189,8 @@ def _run_many(args: argparse.Namespace) -> str:
     options = {**_options(args), "progress": False}
     if args.theta0_deg is not None:
         options["theta0"] = _theta0_list(args.theta0_deg)
+    if args.psi0_deg is not None:
+        options["psi0"] = _psi0(args.psi0_deg, None)
     runs = estimate_many(folders, args.out, args.method, options, workers=args.workers,
                          scheduler=args.scheduler, redo=args.force, progress=True)
     return format_runs(runs, args.out)
@@ -163,6 +205,8 @@ def _run_one(args: argparse.Namespace, folder: str) -> str:
     sequence = load_sequence(folder)
     theta0 = _theta0(args.theta0_deg, sequence.robot)
     options = _options(args)
+    if args.psi0_deg is not None:
+        options["psi0"] = _psi0(args.psi0_deg, sequence.robot.n_segments)
     check_output_folder(args.out, args.force)  # after the inputs: their errors come first
     try:
         result = estimate(sequence, method=args.method, theta0=theta0, **options)
@@ -189,7 +233,8 @@ def _run_one(args: argparse.Namespace, folder: str) -> str:
             lines.append(f"segment {i + 1}: k = {seg.k:.4f} +/- {sig[0]:.4f}, delta_max = "
                          f"{math.degrees(seg.delta_max):.3f} +/- {math.degrees(sig[1]):.3f} deg")
     if sequence.thetas is not None:  # evaluation only: the estimator never read these
-        rms = np.degrees(result.rms(sequence.thetas))
-        lines.append("RMS error vs the sequence's ground truth: "
+        rms = np.degrees(result.rms(sequence.thetas, sequence.psis))
+        what = " (bending vector)" if result.spatial else ""
+        lines.append(f"RMS error{what} vs the sequence's ground truth: "
                      + ", ".join(f"segment {i + 1} {v:.3f} deg" for i, v in enumerate(rms)))
     return "\n".join(lines)

@@ -28,16 +28,20 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> str:
     """Compare and return the table."""
     from apcc_graph.evaluation.accuracy import compare
-    from apcc_graph.io.estimates import load_theta_csv
+    from apcc_graph.io.estimates import load_theta_table
 
-    _, thetas, _ = load_theta_csv(Path(args.estimate) / "theta.csv")
-    report = compare(thetas, truth_for(args.estimate, thetas, args.truth), window=args.window)
+    table = load_theta_table(Path(args.estimate) / "theta.csv")
+    thetas = table.thetas
+    truth, truth_psis = truth_for(args.estimate, thetas, args.truth, psis=True)
+    report = compare(thetas, truth, window=args.window, psis=table.psis, truth_psis=truth_psis)
     n_seg = thetas.shape[1]
     lines = [f"{'':<16}" + "".join(f"{f'segment {i + 1}':>12}" for i in range(n_seg)),
              f"{'RMS (deg)':<16}" + "".join(f"{v:>12.4f}" for v in np.degrees(report.rms)),
              f"{'max |err| (deg)':<16}" + "".join(f"{v:>12.4f}"
                                                   for v in np.degrees(report.max_abs)),
              f"RMS per window of {report.window} frames (deg):"]
+    if table.psis is not None:
+        lines.insert(0, "errors of the bending vector theta (cos psi, sin psi)")
     for start, row in zip(report.window_starts, report.window_rms, strict=True):
         lines.append(f"  frames {start:>6}-{min(start + report.window, thetas.shape[0]) - 1:<6}"
                      + "".join(f"{v:>12.4f}" for v in np.degrees(row)))

@@ -49,17 +49,19 @@ class BatchReport:
 
 
 def build_terms(sequence: Sequence, options: GraphOptions,
-                calibrate: bool = False) -> list[CameraTerms]:
-    """The projection terms of every camera of the sequence that has tracks."""
+                calibrate: bool = False, spatial: bool = False) -> list[CameraTerms]:
+    """The projection terms of every camera of the sequence that has tracks (with
+    ``spatial``, over the frames' bending vectors)."""
     terms = []
+    dim = (2 if spatial else 1) * sequence.n_segments
     for cam in sequence.robot.camera_segments:
         obs = camera_observations(sequence, cam, options.threshold_px, options.min_track_rows,
                                   max_track_frames=options.max_track_frames)
         if obs is None:
             continue
-        chain = camera_chain(sequence.robot, cam, sequence.world_T_base, sequence.psis)
-        terms.append(CameraTerms(obs, chain, sequence.n_segments, options.frames_per_chunk,
-                                 calibrate))
+        chain = camera_chain(sequence.robot, cam, sequence.world_T_base, sequence.psis,
+                             spatial)
+        terms.append(CameraTerms(obs, chain, dim, options.frames_per_chunk, calibrate))
     return terms
 
 
@@ -145,6 +147,36 @@ def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
     return np.array([sigma(frame_key(f)) for f in frames]), cal
 
 
+def marginal_blocks(graph: gtsam.NonlinearFactorGraph, x: FloatArray, frames: SequenceOf[int],
+                    block: int, dense_limit: int = 6000) -> FloatArray:
+    """``(F, P / block, block, block)`` marginal covariances of consecutive ``block``-sized
+    groups of each frame's ``P`` components at ``x`` ``(F, P)`` (a spatial robot's bending
+    vectors with ``block = 2``); NaN where the system is undetermined. Dense inversion up to
+    ``dense_limit`` unknowns, ``gtsam.Marginals`` beyond, as :func:`marginal_deviations`."""
+    n_frames, P = x.shape
+    shape = (n_frames, P // block, block, block)
+    values, ordering = _values_and_ordering(x, frames, None)
+    if x.size <= dense_limit:
+        info, _ = graph.linearize(values).hessian(ordering)
+        try:
+            L = np.linalg.cholesky(info)
+        except np.linalg.LinAlgError:
+            return np.full(shape, np.nan)
+        L_inv = scipy.linalg.solve_triangular(L, np.eye(len(info)), lower=True,
+                                              check_finite=False).reshape(len(info), *shape[:3])
+        return np.einsum("nfsi,nfsj->fsij", L_inv, L_inv)
+    try:
+        found = gtsam.Marginals(graph, values)
+    except RuntimeError:
+        return np.full(shape, np.nan)
+    out = np.empty(shape)
+    for i, f in enumerate(frames):
+        cov = found.marginalCovariance(frame_key(f))
+        for s in range(shape[1]):
+            out[i, s] = cov[block * s:block * (s + 1), block * s:block * (s + 1)]
+    return out
+
+
 @dataclass(frozen=True)
 class ProjectionSolution:
     """What :func:`projection_solve` found.
@@ -156,6 +188,11 @@ class ProjectionSolution:
         segments: the self-calibrated segment models, or ``None``.
         calibration_sigmas: ``(S, 2)`` marginal standard deviations of k and delta_max
             (radians), or ``None``.
+        covariances: spatial only, ``(F, S, 2, 2)`` the marginal covariance of each bending
+            vector (radians squared; NaN where undetermined), or ``None``.
+
+    With ``spatial``, ``thetas`` and ``sigmas`` are ``(F, 2 S)``: bending vectors and the
+    standard deviations of their components.
     """
 
     thetas: FloatArray
@@ -164,6 +201,7 @@ class ProjectionSolution:
     report: BatchReport
     segments: tuple[Segment, ...] | None = None
     calibration_sigmas: FloatArray | None = None
+    covariances: FloatArray | None = None
 
 
 def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray,
@@ -171,14 +209,15 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
                      max_iterations: int = 30, max_final_rounds: int = 4,
                      marginals: bool = True, progress: bool = False,
                      calibrate: bool = False,
-                     calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0))
-                     ) -> ProjectionSolution:
+                     calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0)),
+                     spatial: bool = False) -> ProjectionSolution:
     """Angles, sigmas and inliers per frame of the projection batch, started at ``initial``.
 
     Args:
         sequence: the sequence.
-        initial: ``(F, S)`` initial angles (radians).
-        theta0: ``(S,)`` start prior's mean.
+        initial: ``(F, S)`` initial angles (radians); ``(F, 2 S)`` bending vectors with
+            ``spatial``.
+        theta0: ``(S,)`` start prior's mean (``(2 S,)`` with ``spatial``), or ``None``.
         options: graph options.
         schedule: the GNC continuation (values of ``mu`` ending with ``inf``); default
             :func:`~apcc_graph.estimation.robust.gnc_start`, fitted to the residuals at
@@ -189,16 +228,20 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         progress: show a progress bar over the stages.
         calibrate: estimate each segment's k and delta_max too, with priors of
             ``calibration_sigmas`` (k, radians) around the robot's values.
+        spatial: the robot bends in 3-D: every frame's variable is its bending vectors
+            (:mod:`apcc_graph.model.bending`); not with ``calibrate``.
     """
+    if spatial and calibrate:
+        raise ValueError("calibrate=True: self-calibration of a spatial robot is not supported")
     if schedule is not None:
         schedule = list(schedule)
         if not schedule or not math.isinf(schedule[-1]):
             raise ValueError(f"schedule = {schedule!r}: expected values ending with inf")
     robot = sequence.robot
     frames = range(sequence.n_frames)
-    terms = build_terms(sequence, options, calibrate)
+    terms = build_terms(sequence, options, calibrate, spatial)
     graph = _graph(sequence, terms, theta0, options,
-                   calibration_sigmas if calibrate else None)
+                   calibration_sigmas if calibrate else None, spatial)
     thetas = np.array(initial, dtype=float)
     cal = (np.array([[s.k, s.delta_max] for s in robot.segments]) if calibrate else None)
     # One bar over every long stage: triangulation, the outlier rounds, the marginals.
@@ -229,30 +272,45 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         bar.update()
     bar.n = len(stages) + 1
     bar.set_postfix_str("marginal sigmas")
-    if marginals:
-        sigmas, cal_sigmas = marginal_deviations(graph, thetas, frames, calibration=cal)
-    else:
-        sigmas = np.full(thetas.shape, np.nan)
-        cal_sigmas = None if cal is None else np.full(cal.shape, np.nan)
+    sigmas, cal_sigmas, covariances = _uncertainty(graph, thetas, frames, cal, marginals,
+                                                   spatial)
     bar.update()
     bar.close()
-    inliers = np.zeros(thetas.shape, dtype=np.int64)
+    inliers = np.zeros((sequence.n_frames, sequence.n_segments), dtype=np.int64)
     for t in terms:
         inliers[:, t.camera] = t.inliers_per_frame(sequence.n_frames)
     report = BatchReport(stage + 1, iterations, sum(t.outlier_rows() for t in terms),
                          sum(len(c.obs) for t in terms for c in t.chunks))
     segments = None if cal is None else _segments(robot, cal)
-    return ProjectionSolution(thetas, sigmas, inliers, report, segments, cal_sigmas)
+    return ProjectionSolution(thetas, sigmas, inliers, report, segments, cal_sigmas,
+                              covariances)
+
+
+def _uncertainty(graph: gtsam.NonlinearFactorGraph, x: FloatArray, frames: SequenceOf[int],
+                 cal: FloatArray | None, marginals: bool, spatial: bool
+                 ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+    """Marginal sigmas of ``x``, of the calibration and, for a spatial robot, the ``2 x 2``
+    covariances of the bending vectors; NaN without ``marginals``."""
+    if marginals and spatial:
+        covariances = marginal_blocks(graph, x, frames, 2)
+        return np.sqrt(np.diagonal(covariances, axis1=-2, axis2=-1)).reshape(x.shape), None, \
+            covariances
+    if marginals:
+        sigmas, cal_sigmas = marginal_deviations(graph, x, frames, calibration=cal)
+        return sigmas, cal_sigmas, None
+    return (np.full(x.shape, np.nan), None if cal is None else np.full(cal.shape, np.nan),
+            None)
 
 
 def _graph(sequence: Sequence, terms: list[CameraTerms], theta0: FloatArray,
-           options: GraphOptions, calibration_sigmas: tuple[float, float] | None
-           ) -> gtsam.NonlinearFactorGraph:
+           options: GraphOptions, calibration_sigmas: tuple[float, float] | None,
+           spatial: bool = False) -> gtsam.NonlinearFactorGraph:
     """The projection batch's graph: priors, calibration priors (when ``calibration_sigmas``
     are given), then every camera's projection factors."""
     graph = gtsam.NonlinearFactorGraph()
     frames = range(sequence.n_frames)
-    for factor in prior_factors(frames, sequence.timestamps, theta0, sequence.robot, options):
+    for factor in prior_factors(frames, sequence.timestamps, theta0, sequence.robot, options,
+                                spatial=spatial):
         graph.add(factor)
     if calibration_sigmas is not None:
         for factor in calibration_factors(sequence.robot, calibration_sigmas):

@@ -1,11 +1,13 @@
 """Factor-graph building shared by the batch optimiser and the fixed-lag smoother.
 
 Variables: one ``Vector(S)`` per frame, the angles of all segments (radians), key
-:func:`factors.projection.frame_key`. Factors (``docs/estimation.md``):
+:func:`factors.projection.frame_key`; for a spatial robot one ``Vector(2 S)``, the bending
+vectors ``(u_0, v_0, u_1, v_1, ...)`` (:mod:`apcc_graph.model.bending`). Factors
+(``docs/estimation.md``):
 
-- the start prior on the first frame (``theta0``, ``GraphOptions.theta0_sigma`` per angle);
+- the start prior on the first frame (``theta0``, ``GraphOptions.theta0_sigma`` per component);
 - a random-walk motion prior between consecutive frames (weak; ``None`` leaves it out);
-- soft joint limits;
+- soft joint limits (on ``|theta|``, or on the bending vector's length ``|b|``);
 - per camera, the projection factors of its tracks (:class:`CameraTerms`): every observation
   once, each track's point eliminated, tracks grouped in chunks; row weights hold the robust
   decisions (:mod:`apcc_graph.estimation.robust`).
@@ -37,8 +39,8 @@ from factors.projection import (
 )
 from factors.track_points import cut_tracks
 
-__all__ = ["CameraTerms", "calibration_factors", "calibration_from", "camera_observations",
-           "frame_key", "prior_factors", "thetas_from", "values_from"]
+__all__ = ["CameraTerms", "bend_limit_factor", "calibration_factors", "calibration_from",
+           "camera_observations", "frame_key", "prior_factors", "thetas_from", "values_from"]
 
 
 def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
@@ -70,11 +72,14 @@ def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
 
 
 def camera_chain(robot: Robot, cam: int, world_T_base: FloatArray | None = None,
-                 psis: FloatArray | None = None) -> CameraChain:
-    """What fixes camera ``cam``'s pose: its segments, mounting, and the base poses."""
+                 psis: FloatArray | None = None, spatial: bool = False) -> CameraChain:
+    """What fixes camera ``cam``'s pose: its segments, mounting, and the base poses (and, for
+    a planar robot, the fixed bending planes ``psis``; a ``spatial`` chain's frame vector holds
+    the bending vectors instead)."""
     camera = robot.cameras[cam]
     assert camera is not None
-    return CameraChain(tuple(robot.segments[:cam + 1]), camera.tip_T_cam, world_T_base, psis)
+    return CameraChain(tuple(robot.segments[:cam + 1]), camera.tip_T_cam, world_T_base,
+                       None if spatial else psis, spatial=spatial)
 
 
 class CameraTerms:
@@ -83,7 +88,7 @@ class CameraTerms:
     Args:
         obs: the camera's tracks.
         chain: the camera's chain (base poses over the frames the observations index).
-        n_segments: S.
+        n_segments: the dimension of a frame's vector (S, or 2 S for a spatial robot).
         frames_per_chunk: see :func:`factors.projection.chunk_tracks`.
         calibrate: the factors also depend on the segments' ``(k, delta_max)`` variables
             (:func:`factors.projection.calibration_key`).
@@ -151,30 +156,58 @@ def limit_factor(key: int, theta_max: FloatArray, sigma: float) -> gtsam.CustomF
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(S), [key], error_func)
 
 
+def bend_limit_factor(key: int, theta_max: FloatArray, sigma: float) -> gtsam.CustomFactor:
+    """Soft joint limits of one spatial frame: ``r_j = max(0, |b_j| - theta_max_j) / sigma``
+    for each segment's bending vector ``b_j = (u_j, v_j)``; its gradient ``b_j / |b_j|`` is
+    used only outside the limit, so the factor is smooth through straight."""
+    theta_max = np.asarray(theta_max, dtype=float)
+    S = len(theta_max)
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values,
+                   H: list[np.ndarray] | None) -> np.ndarray:
+        b = values.atVector(key).reshape(S, 2)
+        norm = np.hypot(b[:, 0], b[:, 1])
+        out = norm > theta_max
+        if H is not None:
+            J = np.zeros((S, 2 * S), order="F")
+            rows = np.flatnonzero(out)
+            for j in rows:
+                J[j, 2 * j:2 * j + 2] = b[j] / (norm[j] * sigma)
+            H[0] = J
+        return np.where(out, norm - theta_max, 0.0) / sigma
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(S), [key], error_func)
+
+
 def prior_factors(frames: Iterable[int], timestamps: Sequence[float] | FloatArray,
                   theta0: FloatArray | None, robot: Robot, options: GraphOptions,
-                  limits: bool = True) -> list[gtsam.NonlinearFactor]:
+                  limits: bool = True, spatial: bool = False) -> list[gtsam.NonlinearFactor]:
     """Start prior (when ``theta0`` is given, on the first of ``frames``), motion priors
     between consecutive frames and joint limits.
 
-    ``timestamps[f]`` is frame f's time (seconds).
+    ``timestamps[f]`` is frame f's time (seconds). With ``spatial`` the frames' vectors are
+    bending vectors, ``2 S`` components, and ``theta0`` is the first frame's bending vector.
     """
     frames = list(frames)
-    S = robot.n_segments
+    dim = (2 if spatial else 1) * robot.n_segments
     out: list[gtsam.NonlinearFactor] = []
     if theta0 is not None:
+        theta0 = np.asarray(theta0, dtype=float)
+        if theta0.shape != (dim,):
+            raise ValueError(f"theta0 has shape {theta0.shape}: expected ({dim},)")
         out.append(gtsam.PriorFactorVector(
-            frame_key(frames[0]), np.asarray(theta0, dtype=float),
-            gtsam.noiseModel.Isotropic.Sigma(S, options.theta0_sigma)))
+            frame_key(frames[0]), theta0,
+            gtsam.noiseModel.Isotropic.Sigma(dim, options.theta0_sigma)))
     theta_max = np.array([s.theta_max for s in robot.segments])
     for prev, f in zip(frames[:-1], frames[1:], strict=True):
         if options.motion_sigma is not None:
             dt = max(float(timestamps[f] - timestamps[prev]), 1e-9)
             out.append(gtsam.BetweenFactorVector(
-                frame_key(prev), frame_key(f), np.zeros(S),
-                gtsam.noiseModel.Isotropic.Sigma(S, options.motion_sigma * np.sqrt(dt))))
+                frame_key(prev), frame_key(f), np.zeros(dim),
+                gtsam.noiseModel.Isotropic.Sigma(dim, options.motion_sigma * np.sqrt(dt))))
     if limits:
-        out += [limit_factor(frame_key(f), theta_max, options.limit_sigma) for f in frames]
+        limit = bend_limit_factor if spatial else limit_factor
+        out += [limit(frame_key(f), theta_max, options.limit_sigma) for f in frames]
     return out
 
 

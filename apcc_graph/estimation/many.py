@@ -110,7 +110,8 @@ def _estimate_and_write(sequence: str, out: str, method: str, options: dict[str,
         options = {**options, "theta0": None if seq.thetas is None else seq.thetas[0]}
     result = estimate(seq, method=method, **options)
     save_estimate(result, out)
-    rms = () if seq.thetas is None else tuple(float(v) for v in result.rms(seq.thetas))
+    rms = (() if seq.thetas is None
+           else tuple(float(v) for v in result.rms(seq.thetas, seq.psis)))
     return SequenceRun(sequence, out, method, result.n_frames, time.perf_counter() - start,
                        rms, "ok")
 

@@ -42,7 +42,8 @@ def check_observations(sequence: Sequence) -> None:
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
              theta0_sigma: float | None = None, vision: str | None = None,
-             threshold_px: float | None = None, **options: Any) -> Estimate:
+             threshold_px: float | None = None, spatial: bool = False,
+             psi0: ArrayLike | None = None, **options: Any) -> Estimate:
     """Estimate every frame's segment angles.
 
     Args:
@@ -60,6 +61,11 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             eliminated) or ``"epipolar"`` (frame pairs, for comparison); batch and smoother
             only.
         threshold_px: the tracks' pixel noise (pixels, default 1); batch and smoother only.
+        spatial: the robot bends in 3-D: estimate every segment's bending plane ``psi`` too
+            (the estimate's ``psis`` and ``psi_sigmas``), in bending vectors smooth through
+            straight (:mod:`~apcc_graph.estimation.spatial_batch`); chain and batch, with a
+            known start (``theta0``, and ``psi0``).
+        psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` only.
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
             :func:`~apcc_graph.estimation.batch.batch_estimate` or
             :func:`~apcc_graph.estimation.smoother.smoother_estimate`); e.g.
@@ -71,7 +77,8 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             must be loaded first, with ``apcc_graph.load_sequence``).
         ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
             ``theta_max`` (radians); a sequence without a single observation;
-            ``theta0_sigma`` without ``theta0``.
+            ``theta0_sigma`` without ``theta0``; ``psi0`` without ``spatial``; ``spatial``
+            without ``theta0``, with the smoother, or with the epipolar model.
         UnknownStartError: (a ``ValueError``) no ``theta0``, and the recording never tells
             the start (the robot never moved enough; the message says which segment).
 
@@ -87,6 +94,9 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     if theta0 is not None:
         sequence.robot.configuration(theta0)
     check_observations(sequence)
+    if spatial or psi0 is not None:
+        return _spatial(sequence, method, theta0, theta0_sigma, psi0, spatial, vision,
+                        threshold_px, options)
     start = None
     if theta0 is None:
         if theta0_sigma is not None:
@@ -118,6 +128,43 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     from dataclasses import replace as with_start
 
     return with_start(result, start=start)
+
+
+def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
+             theta0_sigma: float | None, psi0: ArrayLike | None, spatial: bool,
+             vision: str | None, threshold_px: float | None, options: dict[str, Any]
+             ) -> Estimate:
+    """A spatial robot's estimate: the chained 2-point method or the spatial batch."""
+    if not spatial:
+        raise ValueError("psi0 is given but spatial is False: bending planes are estimated "
+                         "only for a spatial robot (spatial=True)")
+    if theta0 is None:
+        raise ValueError("spatial=True needs the start (theta0, and psi0 unless 0): the search "
+                         "for an unknown start covers planar robots only")
+    if method == "smoother":
+        raise ValueError("spatial=True: the fixed-lag smoother does not estimate bending "
+                         "planes yet; use method='batch' (or 'chain')")
+    if vision not in (None, "projection"):
+        raise ValueError(f"vision = {vision!r}: a spatial robot is estimated with the "
+                         "projection model only")
+    if method == "chain":
+        from apcc_graph.estimation.spatial_chain import spatial_chain_estimate
+
+        if threshold_px is not None:
+            options["threshold_px"] = float(threshold_px)
+        return spatial_chain_estimate(sequence, theta0, psi0, **options)
+    from dataclasses import replace
+
+    from apcc_graph.estimation.options import GraphOptions
+    from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
+
+    changes: dict[str, Any] = {}
+    if theta0_sigma is not None:
+        changes["theta0_sigma"] = float(theta0_sigma)
+    if threshold_px is not None:
+        changes["threshold_px"] = float(threshold_px)
+    options["options"] = replace(options.get("options") or GraphOptions(), **changes)
+    return spatial_batch_estimate(sequence, theta0, psi0, **options)
 
 
 def _run(sequence: Sequence, method: str, theta0: ArrayLike, options: dict[str, Any]

@@ -49,6 +49,12 @@ class Estimate:
             segments. ``None`` otherwise.
         start: when no starting configuration was given, where the estimator found the
             robot to start (:class:`StartReport`); ``None`` otherwise.
+        psis: for a robot estimated as spatial, ``(F, S)`` bending-plane angles in
+            ``(-pi, pi]`` (radians); ``thetas`` are then the bends' magnitudes ``>= 0``
+            (:mod:`~apcc_graph.model.bending`). ``None`` for a planar estimate.
+        psi_sigmas: ``(F, S)`` standard deviations of ``psis`` to first order (radians; they
+            grow like ``1 / theta`` toward straight, where the bending plane is undefined, and
+            are ``inf`` at exactly straight; NaN where the method gives none), or ``None``.
     """
 
     method: str
@@ -61,20 +67,48 @@ class Estimate:
     world_T_base: FloatArray | None = field(default=None, repr=False)
     calibration_sigmas: FloatArray | None = field(default=None, repr=False)
     start: StartReport | None = field(default=None, repr=False)
+    psis: FloatArray | None = field(default=None, repr=False)
+    psi_sigmas: FloatArray | None = field(default=None, repr=False)
 
     @property
     def n_frames(self) -> int:
         """Number of frames."""
         return len(self.timestamps)
 
+    @property
+    def spatial(self) -> bool:
+        """Whether the estimate has bending planes (a robot estimated as spatial)."""
+        return self.psis is not None
+
     def world_T_tip(self) -> FloatArray:
-        """``(F, S, 4, 4)`` tip poses of every segment from the estimated angles."""
-        return self.robot.forward(self.thetas, world_T_base=self.world_T_base)
+        """``(F, S, 4, 4)`` tip poses of every segment from the estimated angles (and bending
+        planes)."""
+        return self.robot.forward(self.thetas, self.psis, world_T_base=self.world_T_base)
 
-    def errors(self, truth: FloatArray) -> FloatArray:
-        """``(F, S)`` estimate minus truth (radians)."""
-        return self.thetas - np.asarray(truth, dtype=float)
+    def errors(self, truth: FloatArray, truth_psis: FloatArray | None = None) -> FloatArray:
+        """``(F, S)`` estimate minus truth (radians). For a spatial estimate, the length of
+        the bending-vector error ``|b - b_true|`` (``truth_psis`` required; ``None`` counts
+        as planar truth, ``psi = 0``)."""
+        truth = np.asarray(truth, dtype=float)
+        if self.psis is None:
+            return self.thetas - truth
+        true_psis = np.zeros_like(truth) if truth_psis is None else np.asarray(truth_psis)
+        du = self.thetas * np.cos(self.psis) - truth * np.cos(true_psis)
+        dv = self.thetas * np.sin(self.psis) - truth * np.sin(true_psis)
+        return np.hypot(du, dv)
 
-    def rms(self, truth: FloatArray) -> FloatArray:
-        """``(S,)`` RMS error per segment against ground truth (radians)."""
-        return rms(self.errors(truth))
+    def rms(self, truth: FloatArray, truth_psis: FloatArray | None = None) -> FloatArray:
+        """``(S,)`` RMS error per segment against ground truth (radians); of the bending
+        vector for a spatial estimate (:meth:`errors`)."""
+        return rms(self.errors(truth, truth_psis))
+
+    def bend_sigmas(self) -> FloatArray:
+        """``(F, S)`` standard deviation of each bend (radians): ``sigmas`` for a planar
+        estimate; for a spatial one, of the bending vector, ``sqrt(sigma_theta^2 + theta^2
+        sigma_psi^2)`` (the trace of its covariance, to first order)."""
+        if self.psis is None or self.psi_sigmas is None:
+            return self.sigmas
+        finite = np.isfinite(self.psi_sigmas)
+        across = self.thetas * np.where(finite, self.psi_sigmas, 0.0)
+        # Exactly straight: sigmas holds the larger axis; the other is at most as large.
+        return np.where(finite, np.hypot(self.sigmas, across), np.sqrt(2.0) * self.sigmas)

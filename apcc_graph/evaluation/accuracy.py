@@ -29,8 +29,14 @@ class AccuracyReport:
     window_rms: FloatArray
 
 
-def compare(thetas: ArrayLike, truth: ArrayLike, window: int = 100) -> AccuracyReport:
+def compare(thetas: ArrayLike, truth: ArrayLike, window: int = 100,
+            psis: ArrayLike | None = None, truth_psis: ArrayLike | None = None
+            ) -> AccuracyReport:
     """Compare ``(F, S)`` estimated angles with ``(F, S)`` true angles.
+
+    With ``psis`` (a spatial estimate's bending planes) the error of each frame and segment is
+    the length of the bending-vector error ``|theta (cos psi, sin psi) - theta_true (cos
+    psi_true, sin psi_true)|``, with ``truth_psis`` (``None``: a planar truth, ``psi = 0``).
 
     Raises:
         ValueError: shapes differ, or the window is not positive.
@@ -41,7 +47,16 @@ def compare(thetas: ArrayLike, truth: ArrayLike, window: int = 100) -> AccuracyR
         raise ValueError(f"estimate {est.shape} and truth {ref.shape}: expected the same (F, S)")
     if window < 1:
         raise ValueError(f"window = {window}: expected at least 1 frame")
-    err = est - ref
+    if psis is None:
+        err = est - ref
+    else:
+        psi = np.asarray(psis, dtype=float)
+        psi_true = np.zeros_like(ref) if truth_psis is None else np.asarray(truth_psis, float)
+        if psi.shape != est.shape or psi_true.shape != est.shape:
+            raise ValueError(f"psis {psi.shape} and truth_psis {psi_true.shape}: expected "
+                             f"{est.shape}")
+        err = np.hypot(est * np.cos(psi) - ref * np.cos(psi_true),
+                       est * np.sin(psi) - ref * np.sin(psi_true))
     starts = np.arange(0, len(err), window)
     return AccuracyReport(rms=rms(err), max_abs=np.max(np.abs(err), 0), window=window,
                           window_starts=starts, window_rms=window_rms(err, window))

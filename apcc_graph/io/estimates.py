@@ -1,7 +1,9 @@
 """Estimates on disk: ``theta.csv`` and one TUM trajectory per segment tip (docs/formats.md).
 
 - ``theta.csv``: ``frame,timestamp,theta_1..theta_S,sigma_1..sigma_S`` (radians; a sigma is
-  written as ``nan`` where the method gives none);
+  written as ``nan`` where the method gives none); an estimate of a spatial robot adds
+  ``psi_1..psi_S,psi_sigma_1..psi_sigma_S``, the bending planes and their standard deviations
+  (radians; ``theta >= 0`` then, and a ``psi_sigma`` is ``inf`` at exactly straight);
 - ``tips_seg_<i>.tum``: ``timestamp tx ty tz qx qy qz qw`` per frame, the pose of segment i's tip
   in the world frame (metres; Hamilton quaternion, scalar last as TUM and evo expect).
 
@@ -10,6 +12,7 @@ Files are written atomically (temporary file, then rename).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -35,25 +38,40 @@ class Estimate(Protocol):
     def sigmas(self) -> FloatArray: ...  # (F, S) radians, NaN where unknown
 
     @property
+    def psis(self) -> FloatArray | None: ...  # (F, S) radians, spatial estimates only
+
+    @property
+    def psi_sigmas(self) -> FloatArray | None: ...  # (F, S) radians, spatial estimates only
+
+    @property
     def n_frames(self) -> int: ...
 
     def world_T_tip(self) -> FloatArray: ...  # (F, S, 4, 4)
 
 
-def theta_columns(n_segments: int) -> list[str]:
-    """The header of ``theta.csv``."""
-    return (["frame", "timestamp"] + [f"theta_{i}" for i in range(1, n_segments + 1)]
-            + [f"sigma_{i}" for i in range(1, n_segments + 1)])
+def theta_columns(n_segments: int, spatial: bool = False) -> list[str]:
+    """The header of ``theta.csv`` (with the bending-plane columns when ``spatial``)."""
+    names = (["frame", "timestamp"] + [f"theta_{i}" for i in range(1, n_segments + 1)]
+             + [f"sigma_{i}" for i in range(1, n_segments + 1)])
+    if spatial:
+        names += ([f"psi_{i}" for i in range(1, n_segments + 1)]
+                  + [f"psi_sigma_{i}" for i in range(1, n_segments + 1)])
+    return names
 
 
 def theta_csv(estimate: Estimate) -> str:
     """The text of ``theta.csv``."""
     n_seg = estimate.thetas.shape[1]
-    lines = [",".join(theta_columns(n_seg))]
+    psis = getattr(estimate, "psis", None)
+    columns = [estimate.thetas, estimate.sigmas]
+    if psis is not None:
+        psi_sigmas = getattr(estimate, "psi_sigmas", None)
+        columns += [psis, np.full(psis.shape, np.nan) if psi_sigmas is None else psi_sigmas]
+    values = np.hstack(columns)
+    lines = [",".join(theta_columns(n_seg, psis is not None))]
     for f in range(estimate.n_frames):
         fields = [str(f), format_number(estimate.timestamps[f])]
-        fields += [format_number(v) for v in estimate.thetas[f].tolist()]
-        fields += [format_number(v) for v in estimate.sigmas[f].tolist()]
+        fields += [format_number(v) for v in values[f].tolist()]
         lines.append(",".join(fields))
     return "\n".join(lines) + "\n"
 
@@ -81,18 +99,48 @@ def save_estimate(estimate: Estimate, folder: str | Path) -> list[Path]:
     return written
 
 
+@dataclass(frozen=True)
+class ThetaTable:
+    """The contents of ``theta.csv`` (radians, seconds).
+
+    Attributes:
+        timestamps: ``(F,)``.
+        thetas, sigmas: ``(F, S)``.
+        psis, psi_sigmas: ``(F, S)`` for a spatial estimate, else ``None``.
+    """
+
+    timestamps: FloatArray
+    thetas: FloatArray
+    sigmas: FloatArray
+    psis: FloatArray | None = None
+    psi_sigmas: FloatArray | None = None
+
+
 def load_theta_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read ``theta.csv``: ``(timestamps (F,), thetas (F, S), sigmas (F, S))``.
+    """Read ``theta.csv``: ``(timestamps (F,), thetas (F, S), sigmas (F, S))``; the bending
+    planes of a spatial estimate are read by :func:`load_theta_table`.
 
     Raises:
         ValueError: bad header or values; the message names the file and the line.
+    """
+    table = load_theta_table(path)
+    return table.timestamps, table.thetas, table.sigmas
+
+
+def load_theta_table(path: str | Path) -> ThetaTable:
+    """Read ``theta.csv``, with its bending-plane columns if it has them.
+
+    Raises:
+        ValueError: bad header or values (a ``psi`` that is not finite included); the message
+            names the file and the line.
     """
     path = Path(path)
     names = read_header(path)
     n_seg = sum(1 for n in names if n.startswith("theta_"))
     if n_seg == 0:
         raise ValueError(f"{path}: line 1: expected columns {','.join(theta_columns(1))}...")
-    table = read_table(path, theta_columns(n_seg))
+    spatial = "psi_1" in names
+    table = read_table(path, theta_columns(n_seg, spatial))
     if len(table) == 0:
         raise ValueError(f"{path}: no frames")
     frames = table.integers("frame")
@@ -105,4 +153,12 @@ def load_theta_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
     if not np.all(np.isfinite(thetas)):
         row, col = np.argwhere(~np.isfinite(thetas))[0]
         raise table.error(int(row), f"theta_{col + 1}", "expected a finite angle (radians)")
-    return values[:, 1].copy(), thetas.copy(), values[:, 2 + n_seg:].copy()
+    sigmas = values[:, 2 + n_seg:2 + 2 * n_seg].copy()
+    if not spatial:
+        return ThetaTable(values[:, 1].copy(), thetas.copy(), sigmas)
+    psis = values[:, 2 + 2 * n_seg:2 + 3 * n_seg]
+    if not np.all(np.isfinite(psis)):
+        row, col = np.argwhere(~np.isfinite(psis))[0]
+        raise table.error(int(row), f"psi_{col + 1}", "expected a finite angle (radians)")
+    return ThetaTable(values[:, 1].copy(), thetas.copy(), sigmas, psis.copy(),
+                      values[:, 2 + 3 * n_seg:].copy())

@@ -1,0 +1,244 @@
+"""Spatial robots in the back end: bending-vector conversions and their sigmas, the joint-limit
+factor on |b|, the projection factor over bending vectors (gradient and linearisation), the
+spatial batch at the Cramer-Rao bound, a robot passing through straight, and the API's
+refusals."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from apcc_graph import estimate
+from apcc_graph.estimation.graph import bend_limit_factor, camera_chain, camera_observations
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.spatial_bends import (
+    bends_from,
+    polar_from,
+    polar_sigmas,
+    start_bends,
+)
+from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.simulation.simulator import simulate
+from factors.projection import ProjectionFactor, frame_key
+from factors.reduced_system import reduced_system
+
+ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot(ROBOT)
+
+
+# ------------------------------------------------------------------------------ conversions
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1.2, 1.2), min_size=3, max_size=3),
+       st.lists(st.floats(-4.0, 4.0), min_size=3, max_size=3))
+def test_polar_of_bends_is_the_same_bend(thetas: list, psis: list) -> None:
+    b = bends_from(np.array(thetas), np.array(psis))
+    theta, psi = polar_from(b)
+    assert np.all(theta >= 0.0) and np.all(np.abs(psi) <= math.pi)
+    np.testing.assert_allclose(bends_from(theta, psi), b, atol=1e-12)
+
+
+def test_polar_sigmas_are_the_first_order_propagation() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        b = rng.normal(0.0, 0.5, 2)
+        A = rng.normal(0.0, 1e-2, (2, 2))
+        C = A @ A.T
+        # Numerical Jacobian of (theta, psi) in b, then J C J^T.
+        h = 1e-7
+        J = np.zeros((2, 2))
+        for k in range(2):
+            d = np.zeros(2)
+            d[k] = h
+            plus, minus = polar_from(b + d), polar_from(b - d)
+            J[:, k] = [(plus[0][0] - minus[0][0]) / (2 * h), (plus[1][0] - minus[1][0]) / (2 * h)]
+        want = np.sqrt(np.diag(J @ C @ J.T))
+        s_theta, s_psi = polar_sigmas(b, C[None])
+        np.testing.assert_allclose([s_theta[0], s_psi[0]], want, rtol=1e-6)
+
+
+def test_polar_sigmas_at_exactly_straight() -> None:
+    C = np.diag([4e-4, 1e-4])[None]
+    s_theta, s_psi = polar_sigmas(np.zeros(2), C)
+    assert s_theta[0] == pytest.approx(0.02) and math.isinf(s_psi[0])
+    nan_theta, nan_psi = polar_sigmas(np.array([0.1, 0.0]), np.full((1, 2, 2), np.nan))
+    assert math.isnan(nan_theta[0]) and math.isnan(nan_psi[0])
+
+
+def test_start_bends_checks_its_inputs(robot) -> None:
+    np.testing.assert_allclose(start_bends(robot, [0.1, -0.2, 0.3], [0.0, math.pi / 2, 0.0]),
+                               [0.1, 0.0, 0.0, -0.2, 0.3, 0.0], atol=1e-15)
+    with pytest.raises(ValueError, match=r"psi0 has shape \(2,\)"):
+        start_bends(robot, None, [0.0, 1.0])
+    with pytest.raises(ValueError, match=r"psi0\[1\] = nan"):
+        start_bends(robot, None, [0.0, math.nan, 0.0])
+    with pytest.raises(ValueError, match="theta0"):
+        start_bends(robot, [3.0, 0.0, 0.0], None)
+
+
+# ------------------------------------------------------------------------------ limits
+def test_bend_limit_factor_acts_on_the_length_with_the_right_jacobian() -> None:
+    theta_max = np.array([0.5, 0.8])
+    factor = bend_limit_factor(frame_key(0), theta_max, 0.01)
+    values = gtsam.Values()
+    inside = np.array([0.3, -0.3, 0.0, 0.0])  # |b_0| = 0.42 < 0.5, b_1 straight
+    values.insert(frame_key(0), inside)
+    assert factor.error(values) == 0.0
+    outside = np.array([0.4, -0.4, 0.1, 0.85])  # |b_0| = 0.566, |b_1| = 0.856
+    values.update(frame_key(0), outside)
+    r = factor.unwhitenedError(values)
+    np.testing.assert_allclose(r, (np.hypot([0.4, 0.1], [-0.4, 0.85]) - theta_max) / 0.01)
+    J = factor.linearize(values).jacobian()[0][:, :4]
+    h = 1e-7
+    numeric = np.zeros((2, 4))
+    for k in range(4):
+        d = np.zeros(4)
+        d[k] = h
+        for sign in (1, -1):
+            values.update(frame_key(0), outside + sign * d)
+            numeric[:, k] += sign * factor.unwhitenedError(values) / (2 * h)
+    np.testing.assert_allclose(J, numeric, atol=1e-5)
+
+
+# ------------------------------------------------------------------------------ factor
+def _straight_through(robot, n_frames: int, crossing: int) -> np.ndarray:
+    """``(F, S)`` angles ramping through 0 at frame ``crossing`` (segments 1 and 3)."""
+    t = np.arange(n_frames) - crossing
+    thetas = np.column_stack([0.02 * t, 0.3 + 0.01 * t, -0.015 * t])
+    assert np.all(np.abs(thetas) < [s.theta_max for s in robot.segments])
+    return thetas
+
+
+@pytest.mark.parametrize("cam", [0, 2])
+def test_spatial_factor_gradient_and_linearisation_through_straight(robot, cam: int) -> None:
+    """The factor over bending vectors: its gradient is half the derivative of the
+    re-triangulated cost in (u, v), and gtsam's linearisation is the reduced system, at values
+    that include an exactly straight segment (where psi is undefined)."""
+    sim = simulate(robot, 8, noise_px=1.0, seed=4 + cam, scene="room", n_points=500,
+                   spatial=True, fps=5.0, bends=_straight_through(robot, 8, 3))
+    seq = sim.sequence
+    obs = camera_observations(seq, cam, 1.0)
+    chain = camera_chain(robot, cam, seq.world_T_base, spatial=True)
+    bends = bends_from(seq.thetas, seq.psis)
+    assert np.all(bends[3, 0:2] == 0.0) and np.all(bends[3, 4:6] == 0.0)
+    bends[:, 2:4] += np.random.default_rng(cam).normal(0.0, 0.003, (8, 2))
+    n = 2 * (cam + 1)
+    w = np.ones(len(obs))
+    out = reduced_system(obs, chain, bends, 0, w)
+    h = 1e-6
+    numeric = np.zeros_like(out.g)
+    for f in range(8):
+        for j in range(n):
+            plus, minus = bends.copy(), bends.copy()
+            plus[f, j] += h
+            minus[f, j] -= h
+            cost = [reduced_system(obs, chain, x, 0, w, out.points, jacobians=False).cost
+                    for x in (plus, minus)]
+            numeric[f * n + j] = (cost[0] - cost[1]) / (2 * h)
+    np.testing.assert_allclose(out.g, 0.5 * numeric, rtol=0, atol=2e-5 * np.abs(out.g).max())
+    factor = ProjectionFactor(obs, chain, 6).factor()
+    values = gtsam.Values()
+    for f in range(8):
+        values.insert(frame_key(f), bends[f])
+    graph = gtsam.GaussianFactorGraph()
+    graph.push_back(factor.linearize(values))
+    ordering = gtsam.Ordering()
+    for k in factor.keys():
+        ordering.push_back(k)
+    info, _ = graph.hessian(ordering)
+    index = ((np.arange(8) * 6)[:, None] + np.arange(n)).ravel()
+    want = reduced_system(obs, chain, bends, 0, w, out.points)
+    np.testing.assert_allclose(info[np.ix_(index, index)], want.H, rtol=0,
+                               atol=1e-8 * np.abs(want.H).max())
+    others = np.setdiff1d(np.arange(48), index)
+    assert np.all(info[others] == 0.0)
+
+
+def test_spatial_calibration_is_refused(robot) -> None:
+    sim = simulate(robot, 4, seed=0, spatial=True, fps=5.0)
+    obs = camera_observations(sim.sequence, 1, 1.0)
+    chain = camera_chain(robot, 1, spatial=True)
+    with pytest.raises(ValueError, match="spatial robot is not supported"):
+        ProjectionFactor(obs, chain, 6, calibrate=True)
+
+
+# ------------------------------------------------------------------------------ batch
+@pytest.fixture(scope="module")
+def spatial_run(robot):
+    sim = simulate(robot, 60, noise_px=1.0, seed=11, scene="room", spatial=True, fps=10.0)
+    seq = sim.sequence
+    est = estimate(seq, method="batch", theta0=seq.thetas[0], psi0=seq.psis[0], spatial=True)
+    bound = sequence_bound(sim, noise_px=1.0, spatial=True)
+    return sim, est, bound
+
+
+def test_spatial_batch_is_at_the_bound_with_honest_sigmas(spatial_run) -> None:
+    sim, est, bound = spatial_run
+    seq = sim.sequence
+    assert est.spatial and est.psis.shape == est.thetas.shape
+    assert np.all(est.thetas >= 0.0)
+    err = est.rms(seq.thetas, seq.psis)
+    crb = np.sqrt(np.mean(bound.sigmas**2, axis=0))
+    assert np.all(err < 2.0 * crb), (np.degrees(err), np.degrees(crb))
+    sig = np.sqrt(np.mean(est.bend_sigmas()**2, axis=0))
+    np.testing.assert_allclose(sig / crb, 1.0, atol=0.25)
+    # The chain it started from is far worse: the batch did the work.
+    chain = estimate(seq, method="chain", theta0=seq.thetas[0], psi0=seq.psis[0],
+                     spatial=True)
+    assert np.max(chain.rms(seq.thetas, seq.psis)) > 2.0 * np.max(err)
+
+
+def test_a_robot_passing_through_straight(robot) -> None:
+    crossing = 30
+    sim = simulate(robot, 60, noise_px=1.0, seed=2, scene="room", spatial=True, fps=10.0,
+                   bends=_straight_through(robot, 60, crossing))
+    seq = sim.sequence
+    est = estimate(seq, method="batch", theta0=seq.thetas[0], psi0=seq.psis[0], spatial=True)
+    assert np.all(np.isfinite(est.thetas)) and np.all(np.isfinite(est.psis))
+    err = est.errors(seq.thetas, seq.psis)
+    sig = est.bend_sigmas()
+    assert np.all(np.isfinite(sig))
+    # Every bending vector within 4.5 sigma, through the crossing too.
+    assert np.max(err / sig) < 4.5
+    # Near straight the bending plane is uncertain and says so; far from it, it is not.
+    assert est.psi_sigmas[crossing, 0] > 10 * est.psi_sigmas[0, 0]
+    # psi turns by about pi across the crossing (b goes through 0), as the truth's does.
+    _, true_psis = polar_from(bends_from(seq.thetas, seq.psis))
+
+    def turn(psis: np.ndarray) -> float:
+        return abs(math.remainder(psis[crossing + 5, 0] - psis[crossing - 5, 0], 2 * math.pi))
+
+    assert turn(true_psis) > 2.5
+    assert turn(est.psis) == pytest.approx(turn(true_psis), abs=0.05)
+
+
+def test_spatial_api_refusals(robot) -> None:
+    seq = simulate(robot, 5, seed=1, spatial=True, fps=5.0).sequence
+    theta0 = seq.thetas[0]
+    with pytest.raises(ValueError, match="psi0 is given but spatial is False"):
+        estimate(seq, theta0=theta0, psi0=[0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="needs the start"):
+        estimate(seq, spatial=True)
+    with pytest.raises(ValueError, match="smoother does not estimate bending planes"):
+        estimate(seq, method="smoother", theta0=theta0, spatial=True)
+    with pytest.raises(ValueError, match="projection model only"):
+        estimate(seq, theta0=theta0, spatial=True, vision="epipolar")
+    with pytest.raises(ValueError, match=r"psi0 has shape \(2,\)"):
+        estimate(seq, theta0=theta0, psi0=[0.0, 1.0], spatial=True)
+    with pytest.raises(ValueError, match="initial has shape"):
+        estimate(seq, theta0=theta0, spatial=True, initial=np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="spatial robot is not supported"):
+        from apcc_graph.estimation.batch_solve import projection_solve
+
+        projection_solve(seq, np.zeros((5, 6)), np.zeros(6), GraphOptions(), calibrate=True,
+                         spatial=True)
