@@ -66,7 +66,8 @@ def camera_pose_residual(X: gtsam.Pose3, thetas: FloatArray, chain: CameraChain,
                          jacobians: bool = True
                          ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
     """``r = Logmap(X^-1 T_cam(theta))`` and its Jacobians in the camera's angles ``(6, n)``
-    and in ``X`` ``(6, 6)`` (see the module docstring).
+    (``n = chain.n_parameters``: bending vectors for a spatial chain) and in ``X`` ``(6, 6)``
+    (see the module docstring).
 
     Args:
         X: the camera-pose variable's value.
@@ -74,7 +75,7 @@ def camera_pose_residual(X: gtsam.Pose3, thetas: FloatArray, chain: CameraChain,
         chain: the camera's chain (its base poses cover ``frame``).
         frame: the frame.
     """
-    n = len(chain.segments)
+    n = chain.n_parameters
     poses, d_poses = chain.poses(np.asarray(thetas, dtype=float)[None, :], frame, jacobians)
     T = poses[0]
     E = X.between(gtsam.Pose3(T))
@@ -96,11 +97,12 @@ def camera_pose_factor(frame: int, camera: int, chain: CameraChain, n_segments: 
         frame, camera: which pose (:func:`camera_pose_key`) and angles
             (:func:`~factors.projection.frame_key`).
         chain: the camera's chain (its base poses cover ``frame``).
-        n_segments: S, the dimension of the frame's angle vector.
+        n_segments: the dimension of the frame's vector (S; 2 S for a spatial chain, whose
+            camera depends on its segments' bending vectors).
         sigma: the tie's standard deviation (radians and metres alike): small, a constraint.
     """
     theta_key, pose_key = frame_key(frame), camera_pose_key(frame, camera)
-    n = len(chain.segments)
+    n = chain.n_parameters
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values,
                    H: list[np.ndarray] | None) -> np.ndarray:

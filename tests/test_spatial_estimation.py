@@ -17,6 +17,8 @@ from hypothesis import strategies as st
 from apcc_graph import estimate
 from apcc_graph.estimation.graph import bend_limit_factor, camera_chain, camera_observations
 from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
+from apcc_graph.estimation.smoother_runs import projection_smoother_estimate
 from apcc_graph.estimation.spatial_bends import (
     bends_from,
     polar_from,
@@ -198,6 +200,28 @@ def test_spatial_batch_is_at_the_bound_with_honest_sigmas(spatial_run) -> None:
     assert np.max(chain.rms(seq.thetas, seq.psis)) > 2.0 * np.max(err)
 
 
+def _spatial_smoother_run(robot, seed: int, n_points: int, outliers: float, frames: int):
+    sim = simulate(robot, frames, noise_px=1.0, outlier_fraction=outliers, seed=seed,
+                   scene="room", n_points=n_points, spatial=True)
+    seq = sim.sequence
+    est = projection_smoother_estimate(seq, seq.thetas[0], spatial=True, psi0=seq.psis[0])
+    bound = sequence_bound(sim, noise_px=1.0, spatial=True)
+    return seq, est, np.sqrt(np.mean(bound.sigmas**2, axis=0))
+
+
+def test_spatial_smoother_near_the_bound_on_a_recording_it_handles(robot) -> None:
+    """The experimental fixed-lag smoother in bending vectors: where it holds, within 3x of
+    the whole recording's bound, with sigmas no smaller than that bound (a 1 s window sees
+    less) and honest."""
+    seq, est, crb = _spatial_smoother_run(robot, 1, 4000, 0.1, 90)
+    assert est.spatial and np.all(np.isfinite(est.psis))
+    err = est.errors(seq.thetas, seq.psis)
+    assert np.all(np.sqrt(np.mean(err**2, axis=0)) < 3.0 * crb), np.degrees(err).max()
+    sig = est.bend_sigmas()
+    assert np.all(np.sqrt(np.mean(sig**2, axis=0)) > 0.9 * crb)
+    assert np.mean((err / sig) ** 2) < 2.0
+
+
 def test_a_robot_passing_through_straight(robot) -> None:
     crossing = 30
     sim = simulate(robot, 60, noise_px=1.0, seed=2, scene="room", spatial=True, fps=10.0,
@@ -229,8 +253,10 @@ def test_spatial_api_refusals(robot) -> None:
         estimate(seq, theta0=theta0, psi0=[0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="needs the start"):
         estimate(seq, spatial=True)
-    with pytest.raises(ValueError, match="smoother does not estimate bending planes"):
+    with pytest.raises(ValueError, match="smoother in bending vectors is experimental"):
         estimate(seq, method="smoother", theta0=theta0, spatial=True)
+    with pytest.raises(ValueError, match="psi0 is given but spatial is False"):
+        ProjectionFixedLagSmoother(robot, theta0=theta0, psi0=[0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="projection model only"):
         estimate(seq, theta0=theta0, spatial=True, vision="epipolar")
     with pytest.raises(ValueError, match=r"psi0 has shape \(2,\)"):

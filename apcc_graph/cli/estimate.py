@@ -123,8 +123,8 @@ def _spatial_options(args: argparse.Namespace) -> dict:
     if not args.spatial:
         return {}
     if args.method == "smoother":
-        raise UserError("--spatial: the smoother does not estimate bending planes yet; use "
-                        "--method batch or chain")
+        raise UserError("--spatial: the smoother in bending vectors is experimental (it can "
+                        "diverge in the first second); use --method batch or chain")
     if args.theta0_deg is None:
         raise UserError("--spatial needs the start: give --theta0-deg (and --psi0-deg unless "
                         "the bending planes start at 0); the search for an unknown start "

@@ -12,7 +12,10 @@ frame's S angles are fitted to the new observations of those tracks, all cameras
 robust Gauss-Newton (Cauchy weights, then the truncated quadratic): a perspective-n-point
 problem in joint space (:func:`refine`). Observations are whitened reprojection errors
 (:mod:`factors.track_points`); Jacobians come from the scalar APCC transforms
-(:func:`apcc_graph.model.scalar_kinematics.apcc_transform_scalar`), one frame at a time.
+(:func:`apcc_graph.model.scalar_kinematics.apcc_transform_scalar`), one frame at a time. For a
+spatial robot (``spatial=True``) the unknowns are the bending vectors
+(:mod:`apcc_graph.model.bending`), and the 2-point front end replaces the 1-point one
+(:mod:`apcc_graph.estimation.spatial_stream`).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from numpy.typing import NDArray
 
 from apcc_graph.frontend.ransac import one_point_ransac
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.bending import bending_transform, bending_transform_derivative
 from apcc_graph.model.kinematics import apcc_transform
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
@@ -59,45 +63,67 @@ class InitialGuess:
     row_inliers: tuple[NDArray[np.bool_], ...] = ()
 
 
-def predict(previous: FloatArray, older: FloatArray | None, robot: Robot) -> FloatArray:
-    """Constant angular velocity from the two previous frames' estimates, within the limits."""
-    prediction = previous if older is None else 2.0 * previous - older
+def within_limits(x: FloatArray, robot: Robot, spatial: bool = False) -> FloatArray:
+    """Angles clipped to ``[-theta_max, theta_max]``; with ``spatial``, bending vectors
+    ``(2 S,)`` shortened to length ``theta_max`` where longer."""
     lim = np.array([s.theta_max for s in robot.segments])
-    return np.clip(prediction, -lim, lim)
+    if not spatial:
+        return np.clip(x, -lim, lim)
+    b = np.asarray(x, dtype=float).reshape(-1, 2)
+    norm = np.hypot(b[:, 0], b[:, 1])
+    shrink = np.where(norm > lim, lim / np.maximum(norm, 1e-300), 1.0)
+    return (b * shrink[:, None]).ravel()
+
+
+def predict(previous: FloatArray, older: FloatArray | None, robot: Robot,
+            spatial: bool = False) -> FloatArray:
+    """Constant angular velocity from the two previous frames' estimates, within the limits
+    (bending vectors with ``spatial``: constant velocity of ``b``, smooth through straight)."""
+    prediction = previous if older is None else 2.0 * previous - older
+    return within_limits(prediction, robot, spatial)
 
 
 def frame_poses(thetas: FloatArray, robot: Robot, world_T_base: FloatArray | None,
-                psis: FloatArray | None = None) -> tuple[list[FloatArray], list[FloatArray]]:
+                psis: FloatArray | None = None, spatial: bool = False
+                ) -> tuple[list[FloatArray], list[FloatArray]]:
     """Per segment i, ``world_T_tip_i`` and its derivatives ``(i + 1, 4, 4)`` with respect to
-    ``thetas[0..i]``, for one frame."""
+    ``thetas[0..i]``, for one frame. With ``spatial``, ``thetas`` are the bending vectors
+    ``(u_0, v_0, u_1, ...)`` and the derivatives ``(2 (i + 1), 4, 4)`` in ``u_0, v_0, ...``."""
     S = robot.n_segments
-    psis = np.zeros(S) if psis is None else psis
-    T, dT = zip(*(apcc_transform_scalar(float(thetas[j]), s, float(psis[j]))
-                  for j, s in enumerate(robot.segments)), strict=True)
+    if spatial:
+        b = np.asarray(thetas, dtype=float).reshape(S, 2)
+        T = [bending_transform(u, v, s) for (u, v), s in zip(b, robot.segments, strict=True)]
+        dT = [np.stack(bending_transform_derivative(u, v, s))
+              for (u, v), s in zip(b, robot.segments, strict=True)]
+    else:
+        psis = np.zeros(S) if psis is None else psis
+        pairs = [apcc_transform_scalar(float(thetas[j]), s, float(psis[j]))
+                 for j, s in enumerate(robot.segments)]
+        T = [t for t, _ in pairs]
+        dT = [d[None] for _, d in pairs]
     base = np.eye(4) if world_T_base is None else np.asarray(world_T_base, dtype=float)
     tips, derivs = [], []
     prefix = [base]
     for i in range(S):
         prefix.append(prefix[-1] @ T[i])
-        tip = prefix[-1]
-        d = np.empty((i + 1, 4, 4))
+        d = []
         for j in range(i + 1):
             suffix = np.eye(4)
             for m in range(j + 1, i + 1):
                 suffix = suffix @ T[m]
-            d[j] = prefix[j] @ dT[j] @ suffix
-        tips.append(tip)
-        derivs.append(d)
+            d.extend(prefix[j] @ dTj @ suffix for dTj in dT[j])
+        tips.append(prefix[-1])
+        derivs.append(np.array(d))
     return tips, derivs
 
 
 def _normal_equations(thetas: FloatArray, robot: Robot, base: FloatArray | None,
                       psis: FloatArray | None, rows: list[FrameRows], scale: float | None,
-                      threshold: float
+                      threshold: float, spatial: bool = False
                       ) -> tuple[FloatArray, FloatArray, float, list[NDArray[np.bool_]]]:
-    S = robot.n_segments
-    tips, derivs = frame_poses(thetas, robot, base, psis)
-    H, g, cost = np.zeros((S, S)), np.zeros(S), 0.0
+    P = len(thetas)
+    tips, derivs = frame_poses(thetas, robot, base, psis, spatial)
+    H, g, cost = np.zeros((P, P)), np.zeros(P), 0.0
     inliers: list[NDArray[np.bool_]] = []
     for r in rows:
         c = r.camera
@@ -123,18 +149,19 @@ def _normal_equations(thetas: FloatArray, robot: Robot, base: FloatArray | None,
         dm = np.zeros((len(q), 2, 3))
         dm[:, 0, 0] = dm[:, 1, 1] = iz
         dm[:, :, 2] = -m * iz[:, None]
-        J = np.einsum("nab,nbc,njc->naj", r.whiten, dm, dq)  # (n, 2, c + 1)
+        J = np.einsum("nab,nbc,njc->naj", r.whiten, dm, dq)  # (n, 2, k): k = len(dpose)
         sw = np.sqrt(w)[:, None, None]
         Jw, rw = J * sw, res * sw[:, :, 0]
-        H[:c + 1, :c + 1] += np.einsum("naj,nak->jk", Jw, Jw)
-        g[:c + 1] += np.einsum("naj,na->j", Jw, rw)
+        k = len(dpose)
+        H[:k, :k] += np.einsum("naj,nak->jk", Jw, Jw)
+        g[:k] += np.einsum("naj,na->j", Jw, rw)
         cost += float(np.sum(rw * rw))
     return H, g, cost, inliers
 
 
 def refine(prediction: FloatArray, robot: Robot, world_T_base: FloatArray | None,
            rows: list[FrameRows], threshold: float, psis: FloatArray | None = None,
-           min_rows: int = 6, iterations: int = 6) -> InitialGuess:
+           min_rows: int = 6, iterations: int = 6, spatial: bool = False) -> InitialGuess:
     """Refine the prediction against fixed points (see the module docstring).
 
     Args:
@@ -146,6 +173,8 @@ def refine(prediction: FloatArray, robot: Robot, world_T_base: FloatArray | None
         psis: the frame's bending-plane angles, or ``None``.
         min_rows: segments constrained by fewer inliers keep the prediction's angle.
         iterations: Gauss-Newton iterations (the first half Cauchy-weighted).
+        spatial: ``prediction`` holds bending vectors ``(2 S,)`` (and so does the result;
+            the limits then bound each one's length).
 
     Returns:
         The initial guess; ``refined`` is False (and the angles are the prediction) when no
@@ -157,26 +186,26 @@ def refine(prediction: FloatArray, robot: Robot, world_T_base: FloatArray | None
         counts[r.camera] = len(r.points)
     # A segment is refined if a camera on it or further out sees enough.
     reach = np.array([counts[i:].sum() for i in range(S)])
-    free = reach >= min_rows
+    free = np.repeat(reach >= min_rows, 2 if spatial else 1)
     if not free.any():
         return InitialGuess(prediction.copy(), np.zeros(S, dtype=np.int64), False,
                             tuple(np.ones(len(r.points), dtype=bool) for r in rows))
     thetas = prediction.copy()
-    lim = np.array([s.theta_max for s in robot.segments])
     for it in range(iterations):
         scale = 3.0 * threshold if it < iterations // 2 else None
         H, g, _, _ = _normal_equations(thetas, robot, world_T_base, psis, rows, scale,
-                                       threshold)
+                                       threshold, spatial)
         Hf = H[np.ix_(free, free)] + 1e-9 * max(float(np.trace(H)), 1e-12) * np.eye(free.sum())
-        step = np.zeros(S)
+        step = np.zeros(len(thetas))
         try:
             step[free] = -np.linalg.solve(Hf, g[free])
         except np.linalg.LinAlgError:
             break
-        thetas = np.clip(thetas + step, -lim, lim)
+        thetas = within_limits(thetas + step, robot, spatial)
         if np.max(np.abs(step)) < 1e-7:
             break
-    *_, inliers = _normal_equations(thetas, robot, world_T_base, psis, rows, None, threshold)
+    *_, inliers = _normal_equations(thetas, robot, world_T_base, psis, rows, None, threshold,
+                                    spatial)
     out = np.zeros(S, dtype=np.int64)
     for r, flags in zip(rows, inliers, strict=True):
         out[r.camera] = int(flags.sum())

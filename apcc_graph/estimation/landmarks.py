@@ -71,13 +71,15 @@ class Landmarks:
         max_per_camera: most landmarks per camera at a time.
         prior_sigma: a landmark's weak prior at its first triangulation (metres).
         pose_sigma: stiffness of the tie between a frame's angles and its camera poses.
+        dim: the length of a frame's vector (default S; 2 S for a spatial robot).
     """
 
     def __init__(self, robot: Robot, chain: ChainLookup, frame: FrameLookup, sigma_px: float,
                  inlier_sigmas: float,
                  lag: float, max_per_camera: int = 10, prior_sigma: float = 10.0,
-                 pose_sigma: float = 1e-4) -> None:
+                 pose_sigma: float = 1e-4, dim: int | None = None) -> None:
         self.robot = robot
+        self.dim = robot.n_segments if dim is None else dim  # a frame's vector
         self.chain, self.frame = chain, frame
         self.sigma_px, self.inlier_sigmas, self.lag = sigma_px, inlier_sigmas, lag
         self.max_per_camera = int(max_per_camera)
@@ -197,6 +199,5 @@ class Landmarks:
         key = camera_pose_key(g, cam)
         add.values.insert(key, gtsam.Pose3(pose))
         add.stamps[key] = time
-        add.graph.add(camera_pose_factor(g, cam, chain, self.robot.n_segments,
-                                         self.pose_sigma))
+        add.graph.add(camera_pose_factor(g, cam, chain, self.dim, self.pose_sigma))
         self._poses.add((g, cam))

@@ -64,7 +64,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         spatial: the robot bends in 3-D: estimate every segment's bending plane ``psi`` too
             (the estimate's ``psis`` and ``psi_sigmas``), in bending vectors smooth through
             straight (:mod:`~apcc_graph.estimation.spatial_batch`); chain and batch, with a
-            known start (``theta0``, and ``psi0``).
+            known start (``theta0``, and ``psi0``) and the projection model.
         psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` only.
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
             :func:`~apcc_graph.estimation.batch.batch_estimate` or
@@ -142,8 +142,9 @@ def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
         raise ValueError("spatial=True needs the start (theta0, and psi0 unless 0): the search "
                          "for an unknown start covers planar robots only")
     if method == "smoother":
-        raise ValueError("spatial=True: the fixed-lag smoother does not estimate bending "
-                         "planes yet; use method='batch' (or 'chain')")
+        raise ValueError("spatial=True: the fixed-lag smoother in bending vectors is "
+                         "experimental (ProjectionFixedLagSmoother(spatial=True)) and can "
+                         "diverge in the first second; use method='batch' (or 'chain')")
     if vision not in (None, "projection"):
         raise ValueError(f"vision = {vision!r}: a spatial robot is estimated with the "
                          "projection model only")
@@ -156,7 +157,6 @@ def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
     from dataclasses import replace
 
     from apcc_graph.estimation.options import GraphOptions
-    from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
 
     changes: dict[str, Any] = {}
     if theta0_sigma is not None:
@@ -164,6 +164,8 @@ def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
     if threshold_px is not None:
         changes["threshold_px"] = float(threshold_px)
     options["options"] = replace(options.get("options") or GraphOptions(), **changes)
+    from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
+
     return spatial_batch_estimate(sequence, theta0, psi0, **options)
 
 

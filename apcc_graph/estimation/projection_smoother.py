@@ -38,12 +38,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.estimation.blackout import Reacquisition, tracks_returned, warn_blackout
-from apcc_graph.estimation.graph import frame_key, limit_factor
+from apcc_graph.estimation.frame_priors import frame_priors
+from apcc_graph.estimation.graph import frame_key
 from apcc_graph.estimation.initial_guess import frame_pairs, one_point_guess, predict, refine
 from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
 from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions, smoother_settings
+from apcc_graph.estimation.spatial_bends import start_bends
+from apcc_graph.estimation.spatial_stream import covariance_blocks, present, two_point_guess
 from apcc_graph.estimation.start_check import check_start
 from apcc_graph.estimation.stillness import StillFrames
 from apcc_graph.estimation.window import (
@@ -60,9 +63,6 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
 
-LIMIT_MARGIN = math.radians(10.0)
-"""Soft joint limits join frames whose initial angles come within this of a limit (radians)."""
-
 
 class ProjectionFixedLagSmoother(StreamingSmoother):
     """Streaming estimator of a robot's segment angles: ``update(frame)`` once per frame.
@@ -75,6 +75,11 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
             of ``options.theta0_sigma``.
         settings: the smoother's options
             (:class:`~apcc_graph.estimation.smoother_options.ProjectionSmootherOptions`).
+        spatial: the robot bends in 3-D: every frame's variables are its bending vectors
+            (:mod:`apcc_graph.estimation.spatial_stream`), and the frames returned have
+            ``psis`` and ``psi_sigmas``; re-acquisition after a blackout is planar only.
+        psi0: ``(S,)`` the bending planes at the start (radians; default 0); ``spatial``
+            only.
         **keywords: fields of :class:`ProjectionSmootherOptions` (``landmarks``,
             ``relinearize``, ...), overriding ``settings``; they read back as attributes.
 
@@ -91,12 +96,18 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
 
     def __init__(self, robot: Robot, lag: float | None = None,
                  options: GraphOptions | None = None, theta0: ArrayLike | None = None,
-                 settings: ProjectionSmootherOptions | None = None, **keywords: Any) -> None:
+                 settings: ProjectionSmootherOptions | None = None, spatial: bool = False,
+                 psi0: ArrayLike | None = None, **keywords: Any) -> None:
         name = type(self).__name__
         start_angles(name, robot, None)  # the robot first
         self.settings = s = smoother_settings(ProjectionSmootherOptions, settings, lag,
                                               keywords, name)
+        self.spatial = bool(spatial)
+        if psi0 is not None and not self.spatial:
+            raise ValueError(f"{name}: psi0 is given but spatial is False")
         self.theta0 = start_angles(name, robot, theta0)
+        if self.spatial:
+            self.theta0 = start_bends(robot, self.theta0, psi0)
         self.start_contradicted = False
         """Whether the first frame's images contradicted ``theta0`` (a warning said so)."""
         self.robot = robot
@@ -104,13 +115,14 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         if o.vision != "projection":
             raise ValueError(f"{name} runs the projection model; use "
                              "apcc_graph.estimation.smoother for vision='epipolar'")
-        self._window = Window(s.lag, robot.n_segments,
-                              lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold))
-        self._tracks = ProjectionTracks(robot, o, s, self._window)
+        self._window = Window(s.lag, (4 if spatial else 1) * robot.n_segments,
+                              lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold),
+                              present if spatial else None)
+        self._tracks = ProjectionTracks(robot, o, s, self._window, self.spatial)
         w = self._window
         self._landmarks = Landmarks(robot, self._tracks.chain, lambda g: (w.thetas[g], w.times[g]),
                                     o.threshold_px, o.inlier_sigmas, s.lag, s.max_landmarks,
-                                    s.landmark_sigma, s.pose_sigma)
+                                    s.landmark_sigma, s.pose_sigma, self._tracks.dim)
         self._previous_rows: Rows = {}
         self._previous_base: FloatArray | None = None
         self._rng = np.random.default_rng(0)
@@ -152,7 +164,7 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         if still.hold(rows, base, f, t, window.inside(f - 1)):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
-        if (self._tracked and window.inside(f - 1)
+        if (self._tracked and not self.spatial and window.inside(f - 1)
                 and tracks_returned(rows, self._previous_rows, self._known)):
             sigmas = self._sigmas(f - 1)
             warn_blackout(still.count - 1, still.last_time or 0.0, sigmas)
@@ -208,21 +220,22 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
                        ) -> tuple[FloatArray, NDArray[np.str_]]:
         """The new frame's angles and status; ``weights`` get the outlier decisions of its
         observations of known points."""
-        S = self.robot.n_segments
+        S, spatial = self.robot.n_segments, self.spatial
         if f == 0:
             return self.theta0.copy(), np.full(S, "initial", dtype="<U24")
         window = self._window
         known, masks = self._tracks.known_rows(rows, marks, self._landmarks)
         previous = window.latest(f - 1)
-        prediction = predict(previous, window.latest(f - 2), self.robot)
+        prediction = predict(previous, window.latest(f - 2), self.robot, spatial)
         counts: dict[int, int] = {}
         for cam, mask in masks:
             counts[cam] = counts.get(cam, 0) + int(mask.sum())
         if any(counts.get(cam, 0) < self.settings.front_end_rows for cam in rows):
-            prediction, _ = one_point_guess(
+            prediction, _ = (two_point_guess if spatial else one_point_guess)(
                 previous, prediction, self.robot, self._previous_base, base,
                 frame_pairs(self._previous_rows, rows), self.options.threshold_px, self._rng)
-        guess = refine(prediction, self.robot, base, known, self.options.inlier_sigmas)
+        guess = refine(prediction, self.robot, base, known, self.options.inlier_sigmas,
+                       spatial=spatial)
         for (cam, mask), flags in zip(masks, guess.row_inliers, strict=True):
             weights[cam][mask] = flags.astype(float)
         return guess.thetas, np.full(S, "ok" if guess.refined else "predicted", dtype="<U24")
@@ -245,26 +258,10 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
 
     def _add_frame(self, graph: gtsam.NonlinearFactorGraph, f: int, dt: float,
                    thetas: FloatArray) -> None:
-        """Priors of the new frame: start prior (frame 0), motion prior (``dt`` seconds after
-        the previous frame), the loose prior without one, limits near them."""
-        S = self.robot.n_segments
-        key = frame_key(f)
-        o = self.options
-        if f == 0:
-            graph.add(gtsam.PriorFactorVector(
-                key, self.theta0, gtsam.noiseModel.Isotropic.Sigma(S, o.theta0_sigma)))
-        elif o.motion_sigma is not None:
-            motion = gtsam.noiseModel.Isotropic.Sigma(S, o.motion_sigma * math.sqrt(max(dt, 1e-9)))
-            if self._window.inside(f - 1):
-                graph.add(gtsam.BetweenFactorVector(frame_key(f - 1), key, np.zeros(S), motion))
-            else:  # a pause longer than the lag: the previous frame has left the window
-                graph.add(gtsam.PriorFactorVector(key, self._window.latest(f - 1), motion))
-        if f > 0 and o.motion_sigma is None:
-            graph.add(gtsam.PriorFactorVector(
-                key, thetas, gtsam.noiseModel.Isotropic.Sigma(S, self.settings.loose_sigma)))
-        theta_max = np.array([s.theta_max for s in self.robot.segments])
-        if np.any(np.abs(thetas) > theta_max - LIMIT_MARGIN):
-            graph.add(limit_factor(key, theta_max, o.limit_sigma))
+        """Priors of the new frame (:func:`~apcc_graph.estimation.frame_priors.frame_priors`),
+        ``dt`` seconds after the previous frame."""
+        frame_priors(graph, f, dt, thetas, self.theta0, self._window, self.robot, self.options,
+                     self.settings.loose_sigma, self.spatial)
 
     # -------------------------------------------------------------------------- solve
     def _solve(self, graph: gtsam.NonlinearFactorGraph, f: int, t: float,
@@ -328,8 +325,9 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         graph = gtsam.NonlinearFactorGraph()
         S = self.robot.n_segments
         graph.add(gtsam.PriorFactorVector(frame_key(f), thetas, prior or gtsam.noiseModel.
-                                          Isotropic.Sigma(S, max(self.options.theta0_sigma,
-                                                                 math.radians(1.0)))))
+                                          Isotropic.Sigma(len(thetas),
+                                                          max(self.options.theta0_sigma,
+                                                              math.radians(1.0)))))
         values = gtsam.Values()
         values.insert(frame_key(f), thetas)
         self._smoother.update(graph, values, key_stamps([(frame_key(f), t)]))
@@ -354,19 +352,20 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
             self._tracks.bases.pop(g, None)
 
     def _sigmas(self, g: int) -> FloatArray:
-        S = self.robot.n_segments
+        """Frame g's marginal sigmas (spatial: its covariance blocks, see the window)."""
+        nan = np.full(self._window.n_segments, np.nan)
         if not self.settings.uncertainty:
-            return np.full(S, np.nan)
+            return nan
         try:
             cov = self._smoother.marginalCovariance(frame_key(g))
-            return np.sqrt(np.maximum(np.diag(cov), 0.0))
         except (RuntimeError, IndexError, ValueError):
-            return np.full(S, np.nan)  # not in gtsam's Bayes tree
+            return nan  # not in gtsam's Bayes tree
+        return covariance_blocks(cov) if self.spatial else np.sqrt(np.maximum(np.diag(cov), 0))
 
     def _frame_estimate(self, f: int) -> SmootherFrame:
         window = self._window
-        return SmootherFrame(f, window.times[f], window.thetas[f].copy(), self._sigmas(f),
-                             window.status[f].copy())
+        return window.present(SmootherFrame(f, window.times[f], window.thetas[f].copy(),
+                                            self._sigmas(f), window.status[f].copy()))
 
     # ------------------------------------------------------------------------- output
     def pop_final(self) -> list[SmootherFrame]:

@@ -62,8 +62,10 @@ class ProjectionTracks:
     """
 
     def __init__(self, robot: Robot, options: GraphOptions,
-                 settings: ProjectionSmootherOptions, window: Window) -> None:
+                 settings: ProjectionSmootherOptions, window: Window,
+                 spatial: bool = False) -> None:
         self.robot = robot
+        self.dim = (2 if spatial else 1) * robot.n_segments  # a frame's vector
         self.options = options
         self.settings = settings
         self.window = window
@@ -71,7 +73,8 @@ class ProjectionTracks:
         self.bases: dict[int, FloatArray | None] = {}
         self.committed = 0
         self.outliers = 0
-        self._chains = {c: camera_chain(robot, c) for c in robot.camera_segments}
+        self._chains = {c: camera_chain(robot, c, spatial=spatial)
+                        for c in robot.camera_segments}
 
     def _new_live(self) -> LiveTracks:
         max_frames = self.options.max_track_frames or 10**9
@@ -88,10 +91,11 @@ class ProjectionTracks:
         if all(b is None for b in bases):
             return chain
         stack = np.stack([np.eye(4) if b is None else b for b in bases])
-        return CameraChain(chain.segments, chain.tip_T_cam, stack, None, first)
+        return CameraChain(chain.segments, chain.tip_T_cam, stack, None, first, chain.spatial)
 
     def span(self, first: int, last: int) -> FloatArray:
-        """``(last - first + 1, S)`` the current estimates of frames ``first..last``."""
+        """``(last - first + 1, P)`` the current estimates of frames ``first..last`` (``P``:
+        :attr:`dim`)."""
         return np.array([self.window.thetas[g] for g in range(first, last + 1)])
 
     def count(self, observations: int, outliers: int) -> None:
@@ -104,7 +108,7 @@ class ProjectionTracks:
         """One projection factor for camera ``cam``'s committed pieces, with the outlier
         decisions taken against each piece's robust point at the current estimates."""
         first, last = int(obs.frames.min()), int(obs.frames.max())
-        factor = ProjectionFactor(obs, self.chain(cam, first, last), self.robot.n_segments)
+        factor = ProjectionFactor(obs, self.chain(cam, first, last), self.dim)
         norms = factor.residual_norms(self.span(first, last), robust=True)
         factor.weights[:] = gnc_tls_weights(norms, self.options.inlier_sigmas, math.inf)
         self.count(len(obs), int(np.sum(factor.weights == 0.0)))
@@ -158,7 +162,7 @@ class ProjectionTracks:
                 self._decide(cam, obs, weights, index, new, chain, first, last)
             if not weights.any():
                 continue
-            factor = ProjectionFactor(obs, chain, self.robot.n_segments, weights)
+            factor = ProjectionFactor(obs, chain, self.dim, weights)
             factor.points = np.array([points[int(p)] for p in obs.ids])
             factor.point_iterations = self.settings.point_iterations
             out.append((graph.size(), cam, factor))

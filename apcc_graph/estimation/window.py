@@ -71,6 +71,9 @@ class SmootherFrame:
             robot stood still: the frame takes the estimate of the last one that moved;
             :mod:`apcc_graph.estimation.stillness`).
         calibration: ``(S, 2)`` current ``k`` and ``delta_max`` (radians) when self-calibrating.
+        psis, psi_sigmas: for a spatial robot, ``(S,)`` bending planes and their standard
+            deviations (radians; ``thetas`` are then the bends' magnitudes, as in
+            :class:`~apcc_graph.estimation.result.Estimate`); ``None`` otherwise.
     """
 
     frame: int
@@ -79,6 +82,8 @@ class SmootherFrame:
     sigmas: FloatArray
     status: NDArray[np.str_]
     calibration: FloatArray | None = None
+    psis: FloatArray | None = None
+    psi_sigmas: FloatArray | None = None
 
 
 def new_gtsam_smoother(lag: float, relinearize_threshold: float, relinearize_skip: int = 1,
@@ -121,8 +126,11 @@ class Window:
 
     Args:
         lag: window length (seconds).
-        n_segments: angles per frame.
+        n_segments: the length of a frame's sigmas (its angles; for a spatial robot the
+            ``4 S`` entries of its bending vectors' covariance blocks).
         new_smoother: makes gtsam's smoother for the window (again after a restart).
+        present: turns a frame's record into what the smoother returns (for a spatial robot:
+            bending vectors into bends and bending planes); default as recorded.
 
     Attributes:
         smoother: gtsam's smoother holding the window's variables.
@@ -140,9 +148,11 @@ class Window:
     """
 
     def __init__(self, lag: float, n_segments: int,
-                 new_smoother: Callable[[], gtsam.FixedLagSmoother]) -> None:
+                 new_smoother: Callable[[], gtsam.FixedLagSmoother],
+                 present: Callable[[SmootherFrame], SmootherFrame] | None = None) -> None:
         self.lag = lag
         self.n_segments = n_segments
+        self.present = present or (lambda frame: frame)
         self._new_smoother = new_smoother
         self.smoother = new_smoother()
         self.stamps: dict[int, float] = {}
@@ -212,7 +222,7 @@ class Window:
 
     def pop_final(self) -> list[SmootherFrame]:
         """The frames that left since the last call, in order, and forget them."""
-        out = [self.final[g] for g in sorted(self.final)]
+        out = [self.present(self.final[g]) for g in sorted(self.final)]
         self.final.clear()
         return out
 
@@ -225,7 +235,7 @@ class Window:
         for g in self.stamps:
             out[g] = SmootherFrame(g, self.times[g], self.thetas[g].copy(), sigmas(g),
                                    self.status[g].copy(), calibration())
-        return [out[g] for g in sorted(out)]
+        return [self.present(out[g]) for g in sorted(out)]
 
 
 class StreamingSmoother(ABC):
@@ -311,10 +321,13 @@ def stream_estimate(smoother: StreamingSmoother, sequence: Sequence, progress: b
         smoother.update(sequence.frame(f))
     frames = smoother.finish()
     n_seg = sequence.n_segments
+    spatial = bool(frames) and frames[0].psis is not None
     return Estimate(
         method="smoother", robot=sequence.robot, timestamps=sequence.timestamps.copy(),
         thetas=np.array([fr.thetas for fr in frames]),
         sigmas=np.array([fr.sigmas for fr in frames]),
         status=np.array([fr.status for fr in frames], dtype="<U24"),
         inliers=np.zeros((sequence.n_frames, n_seg), dtype=np.int64),
-        world_T_base=sequence.world_T_base)
+        world_T_base=sequence.world_T_base,
+        psis=np.array([fr.psis for fr in frames]) if spatial else None,
+        psi_sigmas=np.array([fr.psi_sigmas for fr in frames]) if spatial else None)

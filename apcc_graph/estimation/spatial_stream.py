@@ -1,0 +1,87 @@
+"""What the fixed-lag smoother does differently for a spatial robot.
+
+The smoother's variables are then every frame's bending vectors ``(u_0, v_0, u_1, ...)``
+(:mod:`apcc_graph.estimation.spatial_bends`). This module holds the three pieces that differ
+from the planar smoother:
+
+- :func:`two_point_guess`: a new frame's bends from the previous frame's by the 2-point RANSAC
+  (:func:`~apcc_graph.frontend.spatial_ransac.two_point_ransac`), per segment from the base
+  outward, where the window knows too few points (the planar smoother's 1-point front end);
+- :func:`covariance_blocks`: what the window keeps of a frame's marginal covariance, the
+  ``2 x 2`` block of each bending vector, flattened to ``(4 S,)``;
+- :func:`present`: a frame as the smoother returns it, ``thetas`` and ``sigmas`` of the bends'
+  magnitudes, and ``psis`` and ``psi_sigmas`` (first order, as the spatial batch's).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.estimation.initial_guess import FramePairs
+from apcc_graph.estimation.spatial_bends import bends_from, polar_from, polar_sigmas
+from apcc_graph.estimation.window import SmootherFrame
+from apcc_graph.frontend.spatial_ransac import two_point_ransac
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.bending import bending_transform, polar
+from apcc_graph.model.robot import Robot
+
+
+def _segment_bases(bends: FloatArray, robot: Robot, world_T_base: FloatArray | None
+                   ) -> list[FloatArray]:
+    pose = np.eye(4) if world_T_base is None else np.asarray(world_T_base, dtype=float)
+    out = []
+    for j, seg in enumerate(robot.segments):
+        out.append(pose)
+        pose = pose @ bending_transform(bends[2 * j], bends[2 * j + 1], seg)
+    return out
+
+
+def two_point_guess(previous: FloatArray, prediction: FloatArray, robot: Robot,
+                    base_previous: FloatArray | None, base_now: FloatArray | None,
+                    pairs: list[FramePairs], threshold_px: float,
+                    rng: np.random.Generator | None = None
+                    ) -> tuple[FloatArray, dict[int, NDArray[np.bool_]]]:
+    """The new frame's bending vectors ``(2 S,)`` by the 2-point front end, from the previous
+    frame's; arguments and result as
+    :func:`~apcc_graph.estimation.initial_guess.one_point_guess`, in bending vectors."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    bends = np.array(prediction, dtype=float)
+    by_camera = {p.camera: p for p in pairs}
+    before = _segment_bases(previous, robot, base_previous)
+    inliers: dict[int, NDArray[np.bool_]] = {}
+    for i, seg in enumerate(robot.segments):
+        camera = robot.cameras[i]
+        found = by_camera.get(i)
+        if camera is None or found is None or len(found.f_a) < 5:
+            continue
+        now = _segment_bases(bends, robot, base_now)[i]
+        theta_a, psi_a = polar(previous[2 * i], previous[2 * i + 1])
+        bend, info = two_point_ransac(float(theta_a), float(psi_a), seg, camera.tip_T_cam,
+                                      np.linalg.inv(before[i]) @ now, found.f_a, found.f_b,
+                                      threshold=threshold_px / camera.fx, rng=rng)
+        if info.success:
+            bends[2 * i:2 * i + 2] = bends_from(bend[:1], bend[1:])
+            inliers[i] = info.inliers
+    return bends, inliers
+
+
+def covariance_blocks(covariance: FloatArray) -> FloatArray:
+    """``(4 S,)`` the flattened ``2 x 2`` diagonal blocks of a frame's ``(2 S, 2 S)`` marginal
+    covariance."""
+    C = np.asarray(covariance, dtype=float)
+    S = len(C) // 2
+    return np.array([C[2 * j:2 * j + 2, 2 * j:2 * j + 2] for j in range(S)]).ravel()
+
+
+def present(frame: SmootherFrame) -> SmootherFrame:
+    """A spatial frame as returned: from its bending vectors ``thetas`` ``(2 S,)`` and
+    :func:`covariance_blocks` ``sigmas`` ``(4 S,)``, the magnitudes ``thetas`` with their
+    ``sigmas`` and the bending planes ``psis`` with ``psi_sigmas`` (each ``(S,)``)."""
+    bends = np.asarray(frame.thetas, dtype=float)
+    S = len(bends) // 2
+    thetas, psis = polar_from(bends)
+    sigma, psi_sigma = polar_sigmas(bends, np.asarray(frame.sigmas).reshape(S, 2, 2))
+    return replace(frame, thetas=thetas, sigmas=sigma, psis=psis, psi_sigmas=psi_sigma)
