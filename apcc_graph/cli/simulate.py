@@ -139,8 +139,10 @@ def _bound_line(sim: object, noise_px: float) -> str:
     if seq.n_frames * seq.n_segments > BOUND_LIMIT:
         return (f"Cramer-Rao bound: not computed ({seq.n_frames} frames x {seq.n_segments} "
                 f"segments > {BOUND_LIMIT} angles)")
-    bound = sequence_bound(sim, noise_px, math.radians(0.1))
-    return ("Cramer-Rao bound of the angles (every observation once, each track's point "
+    spatial = seq.psis is not None
+    bound = sequence_bound(sim, noise_px, math.radians(0.1), spatial=spatial)
+    what = "bending vectors theta (cos psi, sin psi)" if spatial else "angles"
+    return (f"Cramer-Rao bound of the {what} (every observation once, each track's point "
             "unknown, 0.1 deg start prior), RMS per segment: "
             + ", ".join(f"{v:.3f}" for v in np.degrees(bound.rms())) + " deg")
 
