@@ -327,7 +327,7 @@ def test_ransac_refusals() -> None:
 @pytest.mark.parametrize(("kw", "match"), [
     ({"threshold": 0.0}, "threshold"), ({"threshold": math.nan}, "threshold"),
     ({"confidence": 1.0}, "confidence"), ({"batch": 0}, "batch"),
-    ({"max_iterations": 0}, "max_iterations")])
+    ({"max_iterations": 0}, "max_iterations"), ({"engine": "cuda"}, "engine")])
 def test_ransac_refuses_bad_arguments_by_name(kw: dict, match: str) -> None:
     case = random_case(np.random.default_rng(11))
     f = np.tile([0.0, 0.0, 1.0], (10, 1))

@@ -11,11 +11,14 @@ Three figures, all seeded:
 - the RANSAC: a tip camera (f = 500 px, 640x480) on a 0.5 m segment (k = 0.25, theta_max 60
   deg) bending 3-5 deg in any direction from anywhere within 45 deg, half of the trials on a
   moving base; 200 correspondences at 2-8 m, 0.5 px noise, 10% outliers. Timed on the same
-  correspondences: :func:`~apcc_graph.frontend.two_point_ransac` and ``cv2.findEssentialMat``
-  (RANSAC, prob 0.999, threshold 1 px) followed by ``cv2.recoverPose``; OpenCV's rotation is
-  turned into the segment's bending vector through the model (the tip's rotation at b is a turn
-  by ``beta_b`` about ``(-sin psi_b, cos psi_b, 0)``, i.e. the rotation vector
-  ``(1 - delta_max / theta_max) (-v, u, 0)``);
+  correspondences: :func:`~apcc_graph.frontend.two_point_ransac` (its compiled engine, after
+  one warm-up call whose time, the numba compilation or the load from numba's cache, is
+  reported apart; and its numpy reference engine, whose estimates must agree) and
+  ``cv2.findEssentialMat`` (RANSAC, prob 0.999, threshold 1 px) followed by
+  ``cv2.recoverPose``; OpenCV's rotation is turned into the segment's bending vector through
+  the model (the tip's rotation at b is a turn by ``beta_b`` about ``(-sin psi_b, cos psi_b,
+  0)``, i.e. the rotation vector ``(1 - delta_max / theta_max) (-v, u, 0)``). Also the share
+  of the true inliers that ours keeps and of the outliers that it accepts;
 - the minimal solver's median time per call (from the first figure's calls).
 """
 
@@ -27,8 +30,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
-from apcc_graph.frontend import two_point, two_point_ransac
+from apcc_graph.frontend import ransac_jit, two_point, two_point_ransac
 from apcc_graph.frontend.geometry import SegmentTwoView
 from apcc_graph.frontend.spatial_basis import bending_poses
 from apcc_graph.model.arrays import FloatArray
@@ -36,6 +40,8 @@ from apcc_graph.model.bending import bending_vector
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.kinematics import apcc_transform
 from apcc_graph.model.segment import Segment
+
+BoolArray = NDArray[np.bool_]
 
 GROSS = math.radians(5.0)
 """A bending-vector error above this (radians) is a gross failure (for OpenCV, mostly the
@@ -56,6 +62,7 @@ class SpatialCase:
     f_b: FloatArray
     uv_a: FloatArray
     uv_b: FloatArray
+    outliers: BoolArray | None = None  # the correspondences replaced by random ones
 
 
 @dataclass(frozen=True)
@@ -76,6 +83,12 @@ class SpatialSolverBenchmark:
     opencv_failures: int
     ransac_gross: int  # trials more than GROSS off
     opencv_gross: int
+    first_call_seconds: float  # the compiled engine's first call: compilation or cache load
+    first_call: str  # "compiled", "loaded from numba's cache" or "already compiled"
+    numpy_seconds: float  # the numpy reference engine on the same trials
+    engine_gap: float  # largest bending-vector difference between the two engines (radians)
+    inliers_kept: float  # mean share of the true inliers that ours marks inliers
+    outliers_accepted: float  # mean share of the outliers that ours marks inliers
 
 
 def _small_pose(rng: np.random.Generator, rot: float, trans: float) -> FloatArray:
@@ -145,8 +158,10 @@ def ransac_case(rng: np.random.Generator, camera: TipCamera, segment: Segment,
             + rng.normal(0.0, noise_px, (n_points, 2)))
     chosen = rng.choice(n_points, int(round(outlier_fraction * n_points)), replace=False)
     uv_b[chosen] = rng.uniform([0, 0], [camera.width, camera.height], (len(chosen), 2))
+    outliers = np.zeros(n_points, dtype=bool)
+    outliers[chosen] = True
     return SpatialCase(segment, theta_a, psi_a, b_b, None, base, camera.bearings(uv_a),
-                       camera.bearings(uv_b), uv_a, uv_b)
+                       camera.bearings(uv_b), uv_a, uv_b, outliers)
 
 
 def bending_from_rotation(camB_R_camA: FloatArray, case: SpatialCase,
@@ -161,33 +176,70 @@ def bending_from_rotation(camB_R_camA: FloatArray, case: SpatialCase,
     return np.array([omega[1], -omega[0]]) / rate
 
 
-def _ransac_trials(trials: int, rng: np.random.Generator) -> tuple[list[float], ...]:
-    """Times and bending-vector errors of ours and OpenCV's on the same trials."""
+def _ours(case: SpatialCase, camera: TipCamera, engine: str = "numba"
+          ) -> tuple[float, FloatArray, BoolArray]:
+    """Seconds, bending vector and inlier mask of ``two_point_ransac`` on one trial (the call
+    alone: its random generator is made before the clock starts, as a caller keeps one)."""
+    rng = np.random.default_rng(0)
+    start = time.perf_counter()
+    bend, info = two_point_ransac(case.theta_a, case.psi_a, case.segment, camera.tip_T_cam,
+                                  case.baseA_T_baseB, case.f_a, case.f_b,
+                                  threshold=1.0 / camera.fx, confidence=0.999, rng=rng,
+                                  engine=engine)
+    seconds = time.perf_counter() - start
+    return seconds, np.array(bending_vector(*bend)), info.inliers
+
+
+def _warm_up(case: SpatialCase, camera: TipCamera) -> tuple[float, str]:
+    """The compiled engine's first call in this process: its seconds, and what it did."""
+    fresh = not ransac_jit.ransac.signatures
+    hits = sum(ransac_jit.ransac.stats.cache_hits.values())
+    seconds = _ours(case, camera)[0]
+    if not fresh:
+        return seconds, "already compiled"
+    loaded = sum(ransac_jit.ransac.stats.cache_hits.values()) > hits
+    return seconds, "loaded from numba's cache" if loaded else "compiled"
+
+
+def _opencv(case: SpatialCase, camera: TipCamera) -> tuple[float, float, float]:
+    """Seconds of ``findEssentialMat``, of it and ``recoverPose``, and the bending-vector error
+    (NaN when OpenCV returned no matrix)."""
+    K = camera.intrinsic_matrix
+    start = time.perf_counter()
+    E, mask = cv2.findEssentialMat(case.uv_a, case.uv_b, K, method=cv2.RANSAC, prob=0.999,
+                                   threshold=1.0)
+    seconds = time.perf_counter() - start
+    if E is None or E.shape[0] < 3:
+        return seconds, math.nan, math.nan
+    _, R, _, _ = cv2.recoverPose(E[:3], case.uv_a, case.uv_b, K, mask=mask)
+    return (seconds, time.perf_counter() - start,
+            float(np.hypot(*(bending_from_rotation(R, case, camera) - case.b_b))))
+
+
+def _ransac_trials(trials: int, rng: np.random.Generator) -> dict[str, list]:
+    """Per trial: times, bending-vector errors and inlier shares of ours (both engines) and
+    OpenCV's on the same correspondences; ``first`` holds the warm-up call."""
     segment = Segment(0.5, k=0.25, delta_max=0.0, theta_max=math.radians(60.0))
     camera = TipCamera(500.0, 500.0, 320.0, 240.0, 640, 480)
-    K = camera.intrinsic_matrix
-    ours_t, ours_e, cv_t, cv_pose_t, cv_e = [], [], [], [], []
-    for _ in range(trials):
+    rows: dict[str, list] = {key: [] for key in (
+        "ours_t", "ours_e", "numpy_t", "gap", "kept", "accepted", "cv_t", "cv_pose_t", "cv_e")}
+    for trial in range(trials):
         case = ransac_case(rng, camera, segment)
-        start = time.perf_counter()
-        bend, _ = two_point_ransac(case.theta_a, case.psi_a, segment, camera.tip_T_cam,
-                                   case.baseA_T_baseB, case.f_a, case.f_b,
-                                   threshold=1.0 / camera.fx, confidence=0.999,
-                                   rng=np.random.default_rng(0))
-        ours_t.append(time.perf_counter() - start)
-        ours_e.append(float(np.hypot(*(np.array(bending_vector(*bend)) - case.b_b))))
-        start = time.perf_counter()
-        E, mask = cv2.findEssentialMat(case.uv_a, case.uv_b, K, method=cv2.RANSAC, prob=0.999,
-                                       threshold=1.0)
-        cv_t.append(time.perf_counter() - start)
-        if E is None or E.shape[0] < 3:
-            cv_pose_t.append(math.nan)
-            cv_e.append(math.nan)
-            continue
-        _, R, _, _ = cv2.recoverPose(E[:3], case.uv_a, case.uv_b, K, mask=mask)
-        cv_pose_t.append(time.perf_counter() - start)
-        cv_e.append(float(np.hypot(*(bending_from_rotation(R, case, camera) - case.b_b))))
-    return ours_t, ours_e, cv_t, cv_pose_t, cv_e
+        if trial == 0:
+            rows["first"] = list(_warm_up(case, camera))
+        seconds, b, inliers = _ours(case, camera)
+        numpy_seconds, b_numpy, _ = _ours(case, camera, "numpy")
+        rows["ours_t"].append(seconds)
+        rows["ours_e"].append(float(np.hypot(*(b - case.b_b))))
+        rows["numpy_t"].append(numpy_seconds)
+        rows["gap"].append(float(np.max(np.abs(b - b_numpy))) if np.all(np.isfinite(b))
+                           else 0.0 if np.all(np.isnan(b_numpy)) else math.inf)
+        rows["kept"].append(float(np.mean(inliers[~case.outliers])))
+        rows["accepted"].append(float(np.mean(inliers[case.outliers])))
+        for key, value in zip(("cv_t", "cv_pose_t", "cv_e"), _opencv(case, camera),
+                              strict=True):
+            rows[key].append(value)
+    return rows
 
 
 def _median(values: list[float]) -> float:
@@ -215,11 +267,15 @@ def run_spatial_solver_benchmark(cases: int = 2000, trials: int = 100,
         roots += len(out)
         b = np.column_stack(bending_vector(out[:, 0], out[:, 1]))
         found += bool(len(b)) and float(np.min(np.hypot(*(b - case.b_b).T))) < 1e-6
-    ours_t, ours_e, cv_t, cv_pose_t, cv_e = _ransac_trials(trials, rng)
+    r = _ransac_trials(trials, rng)
+    ours_e, cv_e = r["ours_e"], r["cv_e"]
     return SpatialSolverBenchmark(
         cases=cases, found=int(found), mean_roots=roots / max(cases, 1),
-        solve_seconds=_median(times), trials=trials, ransac_seconds=_median(ours_t),
+        solve_seconds=_median(times), trials=trials, ransac_seconds=_median(r["ours_t"]),
         ransac_error=_median(ours_e), ransac_failures=sum(not math.isfinite(e) for e in ours_e),
-        opencv_seconds=_median(cv_t), opencv_pose_seconds=_median(cv_pose_t),
+        opencv_seconds=_median(r["cv_t"]), opencv_pose_seconds=_median(r["cv_pose_t"]),
         opencv_error=_median(cv_e), opencv_failures=sum(not math.isfinite(e) for e in cv_e),
-        ransac_gross=sum(e > GROSS for e in ours_e), opencv_gross=sum(e > GROSS for e in cv_e))
+        ransac_gross=sum(e > GROSS for e in ours_e), opencv_gross=sum(e > GROSS for e in cv_e),
+        first_call_seconds=r["first"][0], first_call=r["first"][1],
+        numpy_seconds=_median(r["numpy_t"]), engine_gap=max(r["gap"]),
+        inliers_kept=float(np.mean(r["kept"])), outliers_accepted=float(np.mean(r["accepted"])))
