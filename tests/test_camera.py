@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from apcc_graph.model.camera import OPENCV_DISTORTION_SIZES, TipCamera, validate_pose
+from apcc_graph.model.camera import OPENCV_DISTORTION_SIZES, TipCamera, is_rigid, validate_pose
 
 DISTORTION = (-0.2, 0.05, 1e-3, -1e-3)
 BASE = {"fx": 500.0, "fy": 510.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480}
@@ -114,6 +114,26 @@ def test_rotation_within_tolerance_is_accepted_and_bottom_row_cleaned() -> None:
     cleaned = validate_pose("pose", pose)
     np.testing.assert_array_equal(cleaned[3], [0.0, 0.0, 0.0, 1.0])
     np.testing.assert_array_equal(cleaned[:3], pose[:3])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.tuples(*[st.floats(-math.pi, math.pi)] * 3), st.tuples(*[st.floats(-5.0, 5.0)] * 3),
+       st.integers(0, 15), st.sampled_from([0.0, 1e-9, 1e-7, 1e-5, 0.1, 1.0, math.nan]))
+def test_is_rigid_answers_as_validate_pose(angles, translation, entry: int,
+                                           change: float) -> None:
+    """The fast check agrees with the full one on rigid transforms and on each of them with
+    one entry changed (well inside or well outside the 1e-6 tolerance)."""
+    pose = _rigid(angles, translation)
+    assert is_rigid(pose)
+    pose[divmod(entry, 4)] += change
+    try:
+        validate_pose("pose", pose)
+        valid = True
+    except ValueError:
+        valid = False
+    if not 1e-7 < change < 1e-5:  # the two measure the tolerance a little differently
+        assert is_rigid(pose) == valid
+    assert not is_rigid(np.eye(3)) and not is_rigid(np.zeros((4, 4)))
 
 
 # ---------------------------------------------------------------------------------- projection

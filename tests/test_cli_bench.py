@@ -138,5 +138,8 @@ def test_bench_spatial_small_run(capsys) -> None:
     honest = row("mean (error / sigma)^2", "batch")
     assert all(0.05 < v < 5.0 for v in honest)
     assert re.search(r"batch: every seed and segment within 2x of the bound: (yes|NO)", text)
-    assert main(["bench", "spatial", "--methods", "smoother"]) == 1
+    smoother = row("RMS / bound, median", "smoother")
+    assert max(smoother) < 3.0 and max(chain) > max(smoother)
+    assert re.search(r"smoother: every seed and segment within 3x of the bound: (yes|NO)", text)
+    assert main(["bench", "spatial", "--methods", "kalman"]) == 1
     assert main(["bench", "spatial", "--outliers", "1.5"]) == 1

@@ -18,7 +18,6 @@ from apcc_graph import estimate
 from apcc_graph.estimation.graph import bend_limit_factor, camera_chain, camera_observations
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
-from apcc_graph.estimation.smoother_runs import projection_smoother_estimate
 from apcc_graph.estimation.spatial_bends import (
     bends_from,
     polar_from,
@@ -204,15 +203,16 @@ def _spatial_smoother_run(robot, seed: int, n_points: int, outliers: float, fram
     sim = simulate(robot, frames, noise_px=1.0, outlier_fraction=outliers, seed=seed,
                    scene="room", n_points=n_points, spatial=True)
     seq = sim.sequence
-    est = projection_smoother_estimate(seq, seq.thetas[0], spatial=True, psi0=seq.psis[0])
+    est = estimate(seq, method="smoother", theta0=seq.thetas[0], psi0=seq.psis[0],
+                   spatial=True)
     bound = sequence_bound(sim, noise_px=1.0, spatial=True)
     return seq, est, np.sqrt(np.mean(bound.sigmas**2, axis=0))
 
 
-def test_spatial_smoother_near_the_bound_on_a_recording_it_handles(robot) -> None:
-    """The experimental fixed-lag smoother in bending vectors: where it holds, within 3x of
-    the whole recording's bound, with sigmas no smaller than that bound (a 1 s window sees
-    less) and honest."""
+def test_spatial_smoother_near_the_bound(robot) -> None:
+    """The fixed-lag smoother in bending vectors, through estimate(): within 3x of the whole
+    recording's bound, with sigmas no smaller than that bound (a 1 s window sees less) and
+    honest."""
     seq, est, crb = _spatial_smoother_run(robot, 1, 4000, 0.1, 90)
     assert est.spatial and np.all(np.isfinite(est.psis))
     err = est.errors(seq.thetas, seq.psis)
@@ -222,12 +222,34 @@ def test_spatial_smoother_near_the_bound_on_a_recording_it_handles(robot) -> Non
     assert np.mean((err / sig) ** 2) < 2.0
 
 
-def test_a_robot_passing_through_straight(robot) -> None:
+def test_spatial_smoother_follows_the_first_frames(robot) -> None:
+    """Each frame's filtered estimate (the smoother's answer when the frame arrives) over the
+    first 40 frames at 30 fps, where no track is four frames long yet at first: the tracks the
+    2-point front end accepts join the graph from their second frame. Without them the
+    window had no vision for three frames, held the start, and strayed 5-10 deg."""
+    sim = simulate(robot, 40, noise_px=1.0, seed=11, scene="room", spatial=True, fps=30.0)
+    seq = sim.sequence
+    truth = bends_from(seq.thetas, seq.psis).reshape(40, -1, 2)
+    smoother = ProjectionFixedLagSmoother(robot, theta0=seq.thetas[0], psi0=seq.psis[0],
+                                          spatial=True)
+    errors = []
+    for f in range(40):
+        now = smoother.update(seq.frame(f))
+        b = bends_from(now.thetas[None], now.psis[None]).reshape(-1, 2)
+        errors.append(np.hypot(*(b - truth[f]).T))
+    errors = np.degrees(np.array(errors))
+    assert errors[1:4].max() < 1.0, errors[1:4]
+    assert errors.max() < 1.0, errors.max(axis=0)
+    assert np.sqrt(np.mean(errors[20:] ** 2)) < 0.3
+
+
+@pytest.mark.parametrize("method", ["batch", "smoother"])
+def test_a_robot_passing_through_straight(robot, method: str) -> None:
     crossing = 30
     sim = simulate(robot, 60, noise_px=1.0, seed=2, scene="room", spatial=True, fps=10.0,
                    bends=_straight_through(robot, 60, crossing))
     seq = sim.sequence
-    est = estimate(seq, method="batch", theta0=seq.thetas[0], psi0=seq.psis[0], spatial=True)
+    est = estimate(seq, method=method, theta0=seq.thetas[0], psi0=seq.psis[0], spatial=True)
     assert np.all(np.isfinite(est.thetas)) and np.all(np.isfinite(est.psis))
     err = est.errors(seq.thetas, seq.psis)
     sig = est.bend_sigmas()
@@ -253,8 +275,6 @@ def test_spatial_api_refusals(robot) -> None:
         estimate(seq, theta0=theta0, psi0=[0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="needs the start"):
         estimate(seq, spatial=True)
-    with pytest.raises(ValueError, match="smoother in bending vectors is experimental"):
-        estimate(seq, method="smoother", theta0=theta0, spatial=True)
     with pytest.raises(ValueError, match="psi0 is given but spatial is False"):
         ProjectionFixedLagSmoother(robot, theta0=theta0, psi0=[0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="projection model only"):

@@ -281,3 +281,19 @@ def test_the_engines_refuse_alike() -> None:
     runs = both_engines(case, f_a, noise, max_iterations=16)
     assert runs[0][1].status == "no-consensus"
     assert_same(runs)
+
+
+@pytest.mark.parametrize("engine", ["numba", "numpy"])
+@pytest.mark.parametrize("bad", [np.zeros((4, 4)), np.diag([1.0, 1.0, 0.0, 1.0]),
+                                 np.full((4, 4), np.nan)], ids=["zeros", "singular", "nan"])
+def test_a_transform_that_is_not_rigid_is_refused_by_name(engine: str, bad: np.ndarray) -> None:
+    """Before, the compiled engine raised ZeroDivisionError, the reference LinAlgError, and a
+    singular base motion gave a 'successful' straight bend."""
+    case, f_a, f_b = noisy_case(92, n=30)
+    for name in ("tip_T_cam", "baseA_T_baseB"):
+        args = {"tip_T_cam": case["tip_T_cam"], "baseA_T_baseB": case["baseA_T_baseB"]}
+        args[name] = bad
+        with pytest.raises(ValueError, match=name):
+            two_point_ransac(case["theta_a"], case["psi_a"], case["segment"], args["tip_T_cam"],
+                             args["baseA_T_baseB"], f_a, f_b, threshold=THRESHOLD,
+                             engine=engine)

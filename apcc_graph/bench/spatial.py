@@ -11,7 +11,8 @@ bending-vector component (the chain starts exactly there). Measured in the same 
   observation once, each track's point a nuisance), per segment the RMS over frames of
   ``sqrt(sigma_u^2 + sigma_v^2)``, and per 100-frame window;
 - accuracy: the RMS over frames of the bending-vector error ``|b - b_true|`` per segment of the
-  chained 2-point estimate and of the spatial batch, beside the bound: median over seeds of
+  chained 2-point estimate, the spatial batch and the fixed-lag smoother (1 s window), beside
+  the bound: median over seeds of
   RMS / bound, the worst seed and the worst 100-frame window; where sigmas exist, the mean of
   ``|b - b_true|^2 / (sigma_theta^2 + theta^2 sigma_psi^2)`` (1 for honest sigmas);
 - how close to straight each segment came (smallest true ``|theta|``), so passages through
@@ -32,6 +33,7 @@ from tqdm import tqdm
 from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
+from apcc_graph.estimation.smoother_runs import projection_smoother_estimate
 from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
 from apcc_graph.estimation.spatial_chain import spatial_chain_estimate
 from apcc_graph.evaluation.sequence_bound import sequence_bound
@@ -44,7 +46,7 @@ N_POINTS = 4000
 NOISE_PX = 1.0
 THETA0_SIGMA = math.radians(0.1)
 WINDOW = 100
-METHODS = ("chain", "batch")
+METHODS = ("chain", "batch", "smoother")
 TARGETS = {"batch": 2.0, "smoother": 3.0}
 """RMS / bound each method is held to, per segment."""
 
@@ -83,9 +85,12 @@ def _estimate(method: str, seq, progress: bool) -> Estimate:
     if method == "chain":
         return spatial_chain_estimate(seq, theta0, psi0, threshold_px=NOISE_PX,
                                       progress=progress)
+    options = GraphOptions(theta0_sigma=THETA0_SIGMA, threshold_px=NOISE_PX)
     if method == "batch":
-        options = GraphOptions(theta0_sigma=THETA0_SIGMA, threshold_px=NOISE_PX)
         return spatial_batch_estimate(seq, theta0, psi0, options=options, progress=progress)
+    if method == "smoother":
+        return projection_smoother_estimate(seq, theta0, options=options, progress=progress,
+                                            spatial=True, psi0=psi0)
     raise ValueError(f"method {method!r}: expected one of {', '.join(METHODS)}")
 
 

@@ -87,11 +87,11 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         help="robots that bend in 3-D: bending vectors beside the Cramer-Rao bound",
         description="Simulate room-scene sequences of the 3-segment robot with turning "
         "bending planes (1 px noise, 10%% outliers, 30 fps) and measure the chained 2-point "
-        "estimate and the spatial batch beside the bound of the bending vectors "
-        "theta (cos psi, sin psi) of the same sequences.",
+        "estimate, the spatial batch and the fixed-lag smoother beside the bound of the "
+        "bending vectors theta (cos psi, sin psi) of the same sequences.",
         parents=[frames_option(600, minimum=30)])
     spb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction")
-    spb.add_argument("--methods", default="chain,batch",
+    spb.add_argument("--methods", default="chain,batch,smoother",
                      help="estimators, comma-separated (default: %(default)s)")
     spb.set_defaults(run=run_spatial)
 

@@ -53,7 +53,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      "degrees (default: 0.1)")
     est.add_argument("--spatial", action="store_true",
                      help="the robot bends in 3-D: estimate each segment's bending plane psi "
-                     "too (theta.csv gains psi_<i> and psi_sigma_<i>); --method batch or chain, "
+                     "too (theta.csv gains psi_<i> and psi_sigma_<i>); any --method, "
                      "with --theta0-deg (and --psi0-deg)")
     est.add_argument("--psi0-deg", default=None,
                      help="with --spatial: the bending planes at the start, degrees, one per "
@@ -122,9 +122,6 @@ def _spatial_options(args: argparse.Namespace) -> dict:
         raise UserError("--psi0-deg applies to --spatial only")
     if not args.spatial:
         return {}
-    if args.method == "smoother":
-        raise UserError("--spatial: the smoother in bending vectors is experimental (it can "
-                        "diverge in the first second); use --method batch or chain")
     if args.theta0_deg is None:
         raise UserError("--spatial needs the start: give --theta0-deg (and --psi0-deg unless "
                         "the bending planes start at 0); the search for an unknown start "

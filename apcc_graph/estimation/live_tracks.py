@@ -16,12 +16,16 @@ An ended piece may be held back (still live) until the estimator commits a batch
 re-linearised at once. Its first frame leaving the window still commits it.
 
 Pieces of fewer than ``min_rows`` observations are dropped when committed (one observation of an
-unknown point carries no information). Observations are kept per frame and dropped with their
-frame when it leaves the window, by then always committed.
+unknown point carries no information). A piece joins the estimator's live factor once it is long
+enough to tell a wrong association (:meth:`LiveTracks.live_rows`), or earlier if the front end
+vouched for every pair of its consecutive observations (:meth:`LiveTracks.vouch`): in the first
+frames, when no piece is long yet, that is the only vision the estimator has. Observations are
+kept per frame and dropped with their frame when it leaves the window, by then always committed.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,6 +54,7 @@ class _Camera:
     last: dict[int, int] = field(default_factory=dict)  # live piece -> last frame seen
     points: dict[int, FloatArray] = field(default_factory=dict)  # piece -> world point
     ended: set[int] = field(default_factory=set)  # pieces whose track ended, not committed
+    vouched: set[int] = field(default_factory=set)  # every pair of rows accepted by a front end
 
 
 class LiveTracks:
@@ -175,6 +180,7 @@ class LiveTracks:
         """The observations of pieces ``due`` (those long enough), and forget the pieces."""
         obs = self._collect(state, due) if due else None
         for piece in due:
+            state.vouched.discard(piece)
             state.first.pop(piece)
             state.last.pop(piece)
             state.points.pop(piece, None)
@@ -210,12 +216,37 @@ class LiveTracks:
     def live_rows(self, cam: int, min_rows: int | None = None
                   ) -> tuple[TrackObservations, FloatArray, IntArray] | None:
         """Camera ``cam``'s live pieces seen in at least ``min_rows`` frames (default the
-        store's ``min_rows``): observations (ids are piece ids), weights, and row positions for
-        :meth:`set_weights`."""
+        store's ``min_rows``), and the vouched ones (:meth:`vouch`): observations (ids are
+        piece ids), weights, and row positions for :meth:`set_weights`."""
         state = self._cams[cam]
         need = self.min_rows if min_rows is None else int(min_rows)
         pieces = {p for p, f in state.first.items() if state.last[p] - f + 1 >= need}
-        return self._gather(state, pieces)
+        return self._gather(state, pieces | state.vouched)
+
+    def vouch(self, frame: int, accepted: Mapping[int, IntArray]) -> None:
+        """Record which observations of frame ``frame`` (after :meth:`add`) a front end
+        accepted, with the same track's observation in frame ``frame - 1``, as inliers of its
+        consensus: ``accepted`` maps a camera to those track ids (call every frame; a camera
+        left out, or an empty mapping when no front end ran, accepted none). A piece stays
+        vouched while every new observation of it is accepted; a piece that loses it also
+        loses its point, so that its rows are decided again, all at once, when it is long
+        enough (:meth:`live_rows`)."""
+        for cam, state in self._cams.items():
+            ids = np.asarray(accepted.get(cam, ()), dtype=np.int64).tolist()
+            now = {state.piece_of[t] for t in ids if t in state.piece_of}
+            for piece in now:
+                if state.first[piece] == frame - 1:
+                    state.vouched.add(piece)
+            lost = {p for p in state.vouched if state.last[p] == frame and p not in now}
+            for piece in lost:
+                state.vouched.discard(piece)
+                state.points.pop(piece, None)
+
+    def lengths(self, cam: int, pieces: IntArray) -> IntArray:
+        """Observations so far of each live piece (0 for -1 or a piece no longer live)."""
+        state = self._cams[cam]
+        return np.array([state.last[p] - state.first[p] + 1 if p in state.first else 0
+                         for p in np.asarray(pieces).tolist()], dtype=np.int64)
 
     def set_weights(self, cam: int, index: IntArray, weights: FloatArray) -> None:
         """Store robust decisions for rows at buffer positions ``index`` (from

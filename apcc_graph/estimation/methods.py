@@ -63,7 +63,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         threshold_px: the tracks' pixel noise (pixels, default 1); batch and smoother only.
         spatial: the robot bends in 3-D: estimate every segment's bending plane ``psi`` too
             (the estimate's ``psis`` and ``psi_sigmas``), in bending vectors smooth through
-            straight (:mod:`~apcc_graph.estimation.spatial_batch`); chain and batch, with a
+            straight (:mod:`~apcc_graph.estimation.spatial_batch`); every method, with a
             known start (``theta0``, and ``psi0``) and the projection model.
         psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` only.
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
@@ -78,7 +78,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
             ``theta_max`` (radians); a sequence without a single observation;
             ``theta0_sigma`` without ``theta0``; ``psi0`` without ``spatial``; ``spatial``
-            without ``theta0``, with the smoother, or with the epipolar model.
+            without ``theta0``, or with the epipolar model.
         UnknownStartError: (a ``ValueError``) no ``theta0``, and the recording never tells
             the start (the robot never moved enough; the message says which segment).
 
@@ -134,17 +134,14 @@ def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
              theta0_sigma: float | None, psi0: ArrayLike | None, spatial: bool,
              vision: str | None, threshold_px: float | None, options: dict[str, Any]
              ) -> Estimate:
-    """A spatial robot's estimate: the chained 2-point method or the spatial batch."""
+    """A spatial robot's estimate: the chained 2-point method, the spatial batch or the
+    fixed-lag smoother in bending vectors."""
     if not spatial:
         raise ValueError("psi0 is given but spatial is False: bending planes are estimated "
                          "only for a spatial robot (spatial=True)")
     if theta0 is None:
         raise ValueError("spatial=True needs the start (theta0, and psi0 unless 0): the search "
                          "for an unknown start covers planar robots only")
-    if method == "smoother":
-        raise ValueError("spatial=True: the fixed-lag smoother in bending vectors is "
-                         "experimental (ProjectionFixedLagSmoother(spatial=True)) and can "
-                         "diverge in the first second; use method='batch' (or 'chain')")
     if vision not in (None, "projection"):
         raise ValueError(f"vision = {vision!r}: a spatial robot is estimated with the "
                          "projection model only")
@@ -164,6 +161,11 @@ def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
     if threshold_px is not None:
         changes["threshold_px"] = float(threshold_px)
     options["options"] = replace(options.get("options") or GraphOptions(), **changes)
+    if method == "smoother":
+        from apcc_graph.estimation.smoother_runs import projection_smoother_estimate
+
+        return projection_smoother_estimate(sequence, theta0, spatial=True, psi0=psi0,
+                                            **options)
     from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
 
     return spatial_batch_estimate(sequence, theta0, psi0, **options)

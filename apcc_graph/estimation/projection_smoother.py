@@ -40,13 +40,13 @@ from numpy.typing import ArrayLike, NDArray
 from apcc_graph.estimation.blackout import Reacquisition, tracks_returned, warn_blackout
 from apcc_graph.estimation.frame_priors import frame_priors
 from apcc_graph.estimation.graph import frame_key
-from apcc_graph.estimation.initial_guess import frame_pairs, one_point_guess, predict, refine
+from apcc_graph.estimation.initial_guess import predict, refine
 from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
 from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions, smoother_settings
 from apcc_graph.estimation.spatial_bends import start_bends
-from apcc_graph.estimation.spatial_stream import covariance_blocks, present, two_point_guess
+from apcc_graph.estimation.spatial_stream import covariance_blocks, front_end_guess, present
 from apcc_graph.estimation.start_check import check_start
 from apcc_graph.estimation.stillness import StillFrames
 from apcc_graph.estimation.window import (
@@ -181,11 +181,12 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
         self._make_room(add, f, t, rows)
         weights = {cam: np.ones(len(ids)) for cam, (ids, _, _) in rows.items()}
         marks = {cam: self._landmarks.of(cam, ids) for cam, (ids, _, _) in rows.items()}
-        thetas, status = self._initial_guess(f, rows, marks, base, weights)
+        thetas, status, accepted = self._initial_guess(f, rows, marks, base, weights)
         window.enter(f, t, t, status)
         window.thetas[f] = thetas
         self._tracks.bases[f] = base
         self._observe(add, f, t, rows, marks, weights)
+        self._tracks.live.vouch(f, accepted)
         self._previous_rows, self._previous_base = rows, base
         self._add_frame(add.graph, f, 0.0 if previous is None else t - previous, thetas)
         live = self._tracks.live_factors(add.graph)
@@ -217,28 +218,29 @@ class ProjectionFixedLagSmoother(StreamingSmoother):
 
     def _initial_guess(self, f: int, rows: Rows, marks: Mapping[int, NDArray[np.int64]],
                        base: FloatArray | None, weights: dict[int, FloatArray]
-                       ) -> tuple[FloatArray, NDArray[np.str_]]:
-        """The new frame's angles and status; ``weights`` get the outlier decisions of its
-        observations of known points."""
-        S, spatial = self.robot.n_segments, self.spatial
+                       ) -> tuple[FloatArray, NDArray[np.str_], dict[int, NDArray[np.int64]]]:
+        """The new frame's angles and status, and per camera the tracks the front end accepted
+        (if it ran); ``weights`` get the outlier decisions of its observations of known
+        points."""
+        S, spatial, accepted = self.robot.n_segments, self.spatial, {}
         if f == 0:
-            return self.theta0.copy(), np.full(S, "initial", dtype="<U24")
-        window = self._window
+            return self.theta0.copy(), np.full(S, "initial", dtype="<U24"), accepted
         known, masks = self._tracks.known_rows(rows, marks, self._landmarks)
-        previous = window.latest(f - 1)
-        prediction = predict(previous, window.latest(f - 2), self.robot, spatial)
+        previous = self._window.latest(f - 1)
+        prediction = predict(previous, self._window.latest(f - 2), self.robot, spatial)
         counts: dict[int, int] = {}
         for cam, mask in masks:
             counts[cam] = counts.get(cam, 0) + int(mask.sum())
         if any(counts.get(cam, 0) < self.settings.front_end_rows for cam in rows):
-            prediction, _ = (two_point_guess if spatial else one_point_guess)(
-                previous, prediction, self.robot, self._previous_base, base,
-                frame_pairs(self._previous_rows, rows), self.options.threshold_px, self._rng)
+            prediction, accepted = front_end_guess(
+                spatial, previous, prediction, self.robot, self._previous_base, base,
+                self._previous_rows, rows, self.options.threshold_px, self._rng)
         guess = refine(prediction, self.robot, base, known, self.options.inlier_sigmas,
                        spatial=spatial)
         for (cam, mask), flags in zip(masks, guess.row_inliers, strict=True):
             weights[cam][mask] = flags.astype(float)
-        return guess.thetas, np.full(S, "ok" if guess.refined else "predicted", dtype="<U24")
+        status = np.full(S, "ok" if guess.refined else "predicted", dtype="<U24")
+        return guess.thetas, status, accepted
 
     def _observe(self, add: Additions, f: int, t: float, rows: Rows,
                  marks: Mapping[int, NDArray[np.int64]],

@@ -126,8 +126,10 @@ class ProjectionTracks:
     def known_rows(self, rows: Rows, marks: Mapping[int, NDArray[np.int64]],
                    landmarks: Landmarks
                    ) -> tuple[list[FrameRows], list[tuple[int, NDArray[np.bool_]]]]:
-        """The new frame's observations of live tracks whose points are known and of
-        landmarks, and per entry the camera and the mask of those rows."""
+        """The new frame's observations of landmarks and of live tracks whose points are known
+        from at least ``settings.min_live_rows`` observations (a vouched piece's point from two
+        close frames is too loose to check a new observation against), and per entry the camera
+        and the mask of those rows."""
         out, masks = [], []
         for cam, (ids, xy, whiten) in rows.items():
             found = landmarks.known_rows(cam, marks[cam], xy, whiten)
@@ -137,6 +139,7 @@ class ProjectionTracks:
             pieces = self.live.piece_ids(cam, ids)
             points = self.live.points(cam)
             known = np.array([p in points for p in pieces.tolist()], dtype=bool)
+            known &= self.live.lengths(cam, pieces) >= self.settings.min_live_rows
             if known.any():
                 pts = np.array([points[p] for p in pieces[known].tolist()])
                 out.append(FrameRows(cam, pts, xy[known], whiten[known]))

@@ -191,8 +191,10 @@ class ProjectionSmootherOptions(SmootherOptions):
             Cramer-Rao bound.
         min_live_rows: a live piece joins the live factor (and its point the initial guesses)
             once it has this many observations (at least 2): with two or three a wrong
-            association cannot be told from the rest. Committed pieces keep all their
-            observations.
+            association cannot be told from the rest, unless the front end accepted each of
+            its pairs (those join the live factor from two; see
+            :meth:`~apcc_graph.estimation.live_tracks.LiveTracks.vouch`). Committed pieces
+            keep all their observations.
         front_end_rows: a camera whose new observations include fewer than this many of
             tracks with known points (the first frames, after a blackout) has its segment's
             angle started by the 1-point front end from the previous frame

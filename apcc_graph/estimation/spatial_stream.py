@@ -2,11 +2,13 @@
 
 The smoother's variables are then every frame's bending vectors ``(u_0, v_0, u_1, ...)``
 (:mod:`apcc_graph.estimation.spatial_bends`). This module holds the three pieces that differ
-from the planar smoother:
+from the planar smoother, and the front end that starts either:
 
 - :func:`two_point_guess`: a new frame's bends from the previous frame's by the 2-point RANSAC
   (:func:`~apcc_graph.frontend.spatial_ransac.two_point_ransac`), per segment from the base
   outward, where the window knows too few points (the planar smoother's 1-point front end);
+- :func:`front_end_guess`: either front end, planar or spatial, and the tracks it accepted
+  (they join the graph early: :meth:`~apcc_graph.estimation.live_tracks.LiveTracks.vouch`);
 - :func:`covariance_blocks`: what the window keeps of a frame's marginal covariance, the
   ``2 x 2`` block of each bending vector, flattened to ``(4 S,)``;
 - :func:`present`: a frame as the smoother returns it, ``thetas`` and ``sigmas`` of the bends'
@@ -15,18 +17,22 @@ from the planar smoother:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.estimation.initial_guess import FramePairs
+from apcc_graph.estimation.initial_guess import FramePairs, frame_pairs, one_point_guess
 from apcc_graph.estimation.spatial_bends import bends_from, polar_from, polar_sigmas
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.frontend.spatial_ransac import two_point_ransac
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.bending import bending_transform, polar
 from apcc_graph.model.robot import Robot
+
+Rows = Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]]
+"""A frame's observations: camera -> (track ids, normalised points, whitening)."""
 
 
 def _segment_bases(bends: FloatArray, robot: Robot, world_T_base: FloatArray | None
@@ -66,6 +72,23 @@ def two_point_guess(previous: FloatArray, prediction: FloatArray, robot: Robot,
             bends[2 * i:2 * i + 2] = bends_from(bend[:1], bend[1:])
             inliers[i] = info.inliers
     return bends, inliers
+
+
+def front_end_guess(spatial: bool, previous: FloatArray, prediction: FloatArray, robot: Robot,
+                    base_previous: FloatArray | None, base_now: FloatArray | None,
+                    previous_rows: Rows, rows: Rows, threshold_px: float,
+                    rng: np.random.Generator | None = None
+                    ) -> tuple[FloatArray, dict[int, NDArray[np.int64]]]:
+    """The new frame's angles (or bending vectors, ``spatial``) by the front end from the
+    previous frame's (:func:`~apcc_graph.estimation.initial_guess.one_point_guess` or
+    :func:`two_point_guess`), over the two frames' observations ``camera -> (track ids,
+    normalised points, whitening)``; and per camera whose RANSAC succeeded the ids of the
+    tracks it accepted as inliers of its consensus."""
+    pairs = frame_pairs(previous_rows, rows)
+    guess, inliers = (two_point_guess if spatial else one_point_guess)(
+        previous, prediction, robot, base_previous, base_now, pairs, threshold_px, rng)
+    return guess, {p.camera: rows[p.camera][0][p.rows[inliers[p.camera]]]
+                   for p in pairs if p.camera in inliers}
 
 
 def covariance_blocks(covariance: FloatArray) -> FloatArray:

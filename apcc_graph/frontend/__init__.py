@@ -15,7 +15,11 @@ Modules (docs/estimation.md, "Two frames"):
   bending-plane angle between two correspondences, and every root of what is left;
 - :mod:`~apcc_graph.frontend.two_point`: the 2-point solver of a spatial segment;
 - :mod:`~apcc_graph.frontend.spatial_ransac`: 2-point RANSAC and robust refinement of the
-  bending vector;
+  bending vector, the numpy reference and the entry point of both engines;
+- :mod:`~apcc_graph.frontend.spatial_jit`, :mod:`~apcc_graph.frontend.pair_jit`,
+  :mod:`~apcc_graph.frontend.ransac_jit`: the same 2-point RANSAC compiled with numba (the
+  default engine): bends, Sampson errors and refinement; the pairs' coefficients, eliminant
+  and roots; the sampling loop;
 - :mod:`~apcc_graph.frontend.tracking`: feature tracking from images with OpenCV.
 
 May import: :mod:`apcc_graph.model` and :mod:`apcc_graph.io` (tracking reads image folders and

@@ -38,6 +38,7 @@ from apcc_graph.frontend.spatial_basis import (
 )
 from apcc_graph.frontend.two_point import TRIVIAL_TOLERANCE
 from apcc_graph.model.arrays import FloatArray, IntArray
+from apcc_graph.model.camera import is_rigid, validate_pose
 from apcc_graph.model.segment import Segment
 
 RANSAC_GRID_STEP = math.radians(2.0)
@@ -176,7 +177,8 @@ def two_point_ransac(
 
     Raises:
         ValueError: bearings not ``(N, 3)`` alike, or a non-finite angle, a threshold that is not
-            positive, a confidence outside (0, 1), iteration counts below 1 or an unknown engine.
+            positive, a confidence outside (0, 1), iteration counts below 1, an unknown engine,
+            or a transform that is not rigid (named).
         TypeError: ``segment`` is not a :class:`~apcc_graph.model.segment.Segment`.
     """
     f_a, f_b = checked_bearings(f_a, f_b)
@@ -184,6 +186,9 @@ def two_point_ransac(
                      engine)
     rng = np.random.default_rng(0) if rng is None else rng
     run = _ransac_numpy if engine == "numpy" else _ransac_compiled
+    for name, value in (("tip_T_cam", tip_T_cam), ("baseA_T_baseB", baseA_T_baseB)):
+        if value is not None and not is_rigid(value):
+            validate_pose(name, value)  # raises, naming what is wrong
     b, errors, idx, iterations, hypotheses = run(
         theta_a, psi_a, segment, tip_T_cam, baseA_T_baseB, f_a, f_b, threshold, confidence,
         rng, max_iterations, batch, min_inliers)
@@ -236,8 +241,8 @@ _IDENTITY = np.eye(4)  # never written (read-only arrays would be another compil
 def _transform(value: ArrayLike | None) -> FloatArray:
     """A 4x4 transform as a contiguous float array (None: the identity)."""
     out = _IDENTITY if value is None else np.ascontiguousarray(value, dtype=float)
-    if out.shape != (4, 4):
-        raise ValueError("tip_T_cam and baseA_T_baseB must be 4x4 transforms")
+    if out.shape != (4, 4) or not np.isfinite(out).all():
+        raise ValueError("tip_T_cam and baseA_T_baseB must be finite 4x4 transforms")
     return out
 
 

@@ -9,6 +9,7 @@ are in OpenCV order ``k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tx, ty
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -50,6 +51,25 @@ def validate_pose(name: str, matrix: ArrayLike, tolerance: float = 1e-6) -> Floa
     m[3] = [0.0, 0.0, 0.0, 1.0]
     m.setflags(write=False)
     return m
+
+
+def is_rigid(matrix: ArrayLike, tolerance: float = 1e-6) -> bool:
+    """Whether ``matrix`` passes :func:`validate_pose`, answered in a few microseconds (plain
+    floats, no copy): for per-call checks in hot paths, which then call
+    :func:`validate_pose` for the message."""
+    a = np.asarray(matrix, dtype=float)
+    if a.shape != (4, 4):
+        return False
+    rows = a.tolist()
+    if not all(math.isfinite(x) for row in rows for x in row):
+        return False
+    (a0, a1, a2, _), (b0, b1, b2, _), (c0, c1, c2, _), last = rows
+    gram = (a0 * a0 + b0 * b0 + c0 * c0 - 1.0, a1 * a1 + b1 * b1 + c1 * c1 - 1.0,
+            a2 * a2 + b2 * b2 + c2 * c2 - 1.0, a0 * a1 + b0 * b1 + c0 * c1,
+            a0 * a2 + b0 * b2 + c0 * c2, a1 * a2 + b1 * b2 + c1 * c2,
+            last[0], last[1], last[2], last[3] - 1.0)
+    det = a0 * (b1 * c2 - b2 * c1) - a1 * (b0 * c2 - b2 * c0) + a2 * (b0 * c1 - b1 * c0)
+    return max(abs(g) for g in gram) <= tolerance and abs(det - 1.0) <= tolerance
 
 
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-15)
