@@ -20,7 +20,7 @@ spatial robot (``spatial=True``) the unknowns are the bending vectors
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -245,14 +245,53 @@ def _unit(xy: FloatArray) -> FloatArray:
     return b / np.linalg.norm(b, axis=1, keepdims=True)
 
 
-def _segment_bases(thetas: FloatArray, robot: Robot,
-                   world_T_base: FloatArray | None) -> list[FloatArray]:
+def segment_bases(x: FloatArray, robot: Robot, world_T_base: FloatArray | None,
+                  spatial: bool = False) -> list[FloatArray]:
+    """``world_T_base`` of every segment for one frame's angles ``(S,)`` or, with
+    ``spatial``, bending vectors ``(2 S,)`` (``world_T_base`` ``None``: identity)."""
     pose = np.eye(4) if world_T_base is None else np.asarray(world_T_base, dtype=float)
     out = []
-    for theta, seg in zip(thetas, robot.segments, strict=True):
+    for j, seg in enumerate(robot.segments):
         out.append(pose)
-        pose = pose @ apcc_transform(float(theta), seg)
+        step = (bending_transform(x[2 * j], x[2 * j + 1], seg) if spatial
+                else apcc_transform(float(x[j]), seg))
+        pose = pose @ step
     return out
+
+
+#: One segment's solver in :func:`chained_guess`: (segment index, its previous value(s),
+#: ``base_prev_T_base_now`` of the segment, the camera's pairs, threshold in radians, rng) ->
+#: (the new value(s), or None if it failed; inlier mask over the pairs).
+SegmentSolver = Callable[[int, FloatArray, FloatArray, "FramePairs", float,
+                          np.random.Generator], tuple[FloatArray | None, NDArray[np.bool_]]]
+
+
+def chained_guess(previous: FloatArray, prediction: FloatArray, robot: Robot,
+                  base_previous: FloatArray | None, base_now: FloatArray | None,
+                  pairs: list[FramePairs], threshold_px: float, rng: np.random.Generator | None,
+                  solve: SegmentSolver, spatial: bool = False
+                  ) -> tuple[FloatArray, dict[int, NDArray[np.bool_]]]:
+    """A front end's guess, segment by segment from the base outward: each segment's base
+    motion comes from the new values of the segments below it; ``solve`` gives its own
+    (arguments and result as :func:`one_point_guess`, ``spatial`` for bending vectors)."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    x = np.array(prediction, dtype=float)
+    width = 2 if spatial else 1
+    by_camera = {p.camera: p for p in pairs}
+    before = segment_bases(previous, robot, base_previous, spatial)
+    inliers: dict[int, NDArray[np.bool_]] = {}
+    for i in range(robot.n_segments):
+        camera = robot.cameras[i]
+        found = by_camera.get(i)
+        if camera is None or found is None or len(found.f_a) < 5:
+            continue
+        motion = np.linalg.inv(before[i]) @ segment_bases(x, robot, base_now, spatial)[i]
+        value, mask = solve(i, previous[width * i:width * (i + 1)], motion, found,
+                            threshold_px / camera.fx, rng)
+        if value is not None:
+            x[width * i:width * (i + 1)] = value
+            inliers[i] = mask
+    return x, inliers
 
 
 def one_point_guess(previous: FloatArray, prediction: FloatArray, robot: Robot,
@@ -275,22 +314,13 @@ def one_point_guess(previous: FloatArray, prediction: FloatArray, robot: Robot,
     Returns:
         The angles, and per camera that succeeded the inlier mask over its pairs.
     """
-    rng = np.random.default_rng(0) if rng is None else rng
-    thetas = np.array(prediction, dtype=float)
-    by_camera = {p.camera: p for p in pairs}
-    before = _segment_bases(previous, robot, base_previous)
-    inliers: dict[int, NDArray[np.bool_]] = {}
-    for i, seg in enumerate(robot.segments):
-        camera = robot.cameras[i]
-        found = by_camera.get(i)
-        if camera is None or found is None or len(found.f_a) < 5:
-            continue
-        now = _segment_bases(thetas, robot, base_now)[i]
-        motion = np.linalg.inv(before[i]) @ now
-        theta, info = one_point_ransac(found.f_a, found.f_b, float(previous[i]), seg,
-                                       camera.tip_T_cam, motion,
-                                       threshold=threshold_px / camera.fx, rng=rng)
-        if info.success:
-            thetas[i] = theta
-            inliers[i] = info.inliers
-    return thetas, inliers
+    def solve(i: int, before: FloatArray, motion: FloatArray, found: FramePairs,
+              threshold: float, rng: np.random.Generator
+              ) -> tuple[FloatArray | None, NDArray[np.bool_]]:
+        theta, info = one_point_ransac(found.f_a, found.f_b, float(before[0]),
+                                       robot.segments[i], robot.cameras[i].tip_T_cam, motion,
+                                       threshold=threshold, rng=rng)
+        return (np.array([theta]) if info.success else None), info.inliers
+
+    return chained_guess(previous, prediction, robot, base_previous, base_now, pairs,
+                         threshold_px, rng, solve)

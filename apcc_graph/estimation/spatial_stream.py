@@ -23,26 +23,21 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.estimation.initial_guess import FramePairs, frame_pairs, one_point_guess
+from apcc_graph.estimation.initial_guess import (
+    FramePairs,
+    chained_guess,
+    frame_pairs,
+    one_point_guess,
+)
 from apcc_graph.estimation.spatial_bends import bends_from, polar_from, polar_sigmas
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.frontend.spatial_ransac import two_point_ransac
 from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.bending import bending_transform, polar
+from apcc_graph.model.bending import polar
 from apcc_graph.model.robot import Robot
 
 Rows = Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]]
 """A frame's observations: camera -> (track ids, normalised points, whitening)."""
-
-
-def _segment_bases(bends: FloatArray, robot: Robot, world_T_base: FloatArray | None
-                   ) -> list[FloatArray]:
-    pose = np.eye(4) if world_T_base is None else np.asarray(world_T_base, dtype=float)
-    out = []
-    for j, seg in enumerate(robot.segments):
-        out.append(pose)
-        pose = pose @ bending_transform(bends[2 * j], bends[2 * j + 1], seg)
-    return out
 
 
 def two_point_guess(previous: FloatArray, prediction: FloatArray, robot: Robot,
@@ -53,25 +48,17 @@ def two_point_guess(previous: FloatArray, prediction: FloatArray, robot: Robot,
     """The new frame's bending vectors ``(2 S,)`` by the 2-point front end, from the previous
     frame's; arguments and result as
     :func:`~apcc_graph.estimation.initial_guess.one_point_guess`, in bending vectors."""
-    rng = np.random.default_rng(0) if rng is None else rng
-    bends = np.array(prediction, dtype=float)
-    by_camera = {p.camera: p for p in pairs}
-    before = _segment_bases(previous, robot, base_previous)
-    inliers: dict[int, NDArray[np.bool_]] = {}
-    for i, seg in enumerate(robot.segments):
-        camera = robot.cameras[i]
-        found = by_camera.get(i)
-        if camera is None or found is None or len(found.f_a) < 5:
-            continue
-        now = _segment_bases(bends, robot, base_now)[i]
-        theta_a, psi_a = polar(previous[2 * i], previous[2 * i + 1])
-        bend, info = two_point_ransac(float(theta_a), float(psi_a), seg, camera.tip_T_cam,
-                                      np.linalg.inv(before[i]) @ now, found.f_a, found.f_b,
-                                      threshold=threshold_px / camera.fx, rng=rng)
-        if info.success:
-            bends[2 * i:2 * i + 2] = bends_from(bend[:1], bend[1:])
-            inliers[i] = info.inliers
-    return bends, inliers
+    def solve(i: int, before: FloatArray, motion: FloatArray, found: FramePairs,
+              threshold: float, rng: np.random.Generator
+              ) -> tuple[FloatArray | None, NDArray[np.bool_]]:
+        theta_a, psi_a = polar(before[0], before[1])
+        bend, info = two_point_ransac(float(theta_a), float(psi_a), robot.segments[i],
+                                      robot.cameras[i].tip_T_cam, motion, found.f_a, found.f_b,
+                                      threshold=threshold, rng=rng)
+        return (bends_from(bend[:1], bend[1:]) if info.success else None), info.inliers
+
+    return chained_guess(previous, prediction, robot, base_previous, base_now, pairs,
+                         threshold_px, rng, solve, spatial=True)
 
 
 def front_end_guess(spatial: bool, previous: FloatArray, prediction: FloatArray, robot: Robot,
