@@ -24,6 +24,8 @@ from apcc_graph.cli.common import (
 EXAMPLE = (
     "examples:\n  apcc-graph calibrate data/calibration/paper_example.toml\n"
     "  apcc-graph calibrate data/calibration/images_sweep --output /tmp/robot.toml\n"
+    "  apcc-graph calibrate data/real_tdcr/impulse_2/backbone_poses.csv --robot "
+    "data/robots/real_tdcr.toml --output /tmp/robot_calibrated.toml\n"
     "  apcc-graph calibrate /tmp/sweep --render --length 0.4 --k 0.21 --delta-max-deg 7 "
     "--theta-max-deg 80 --bends-deg=-80,-40,0,40,80 --seed 0")
 
@@ -33,7 +35,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     cal = commands.add_parser(
         "calibrate",
         help="calibrate k and delta_max of a segment from measured tip poses or marker images",
-        description="Calibrate one segment from a TOML file of measured tip poses "
+        description="Calibrate every segment of a robot from motion-capture backbone poses "
+        "(backbone_poses.csv with --robot: k, delta_max and the marker offsets, with the APCC "
+        "and PCC residuals and held-out markers), or one segment from a TOML file of measured "
+        "tip poses "
         "(format apcc-graph/calibration@1) or from a folder of side-camera images with ArUco "
         "markers on the base and the tip (calibration.toml, format "
         "apcc-graph/calibration-images@1, and *.png): one pose by the paper's closed form, "
@@ -47,7 +52,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                               "and *.png), or replace an existing --output")],
     )
     cal.add_argument("file", metavar="PATH",
-                     help="calibration TOML file, or folder of calibration images")
+                     help="calibration TOML file, folder of calibration images, or "
+                     "backbone_poses.csv (motion capture; then --robot)")
+    cal.add_argument("--robot", help="with a backbone_poses.csv: the robot.toml whose segments "
+                     "are calibrated (its lengths say which markers are segment ends); --output "
+                     "then writes it calibrated, with the marker offsets")
     syn = cal.add_argument_group(
         "synthetic images", "--render first writes a seeded synthetic image folder to PATH (the\n"
         "segment below bent to each of --bends-deg, seen by a 640x480 side camera), then\n"
@@ -87,6 +96,16 @@ def run(args: argparse.Namespace) -> str:
                    and not (name == "force" and args.out is not None)]:
         option = "--" + given[0].replace("_", "-")
         raise UserError(f"{option} applies to --render only")
+    if path.suffix.lower() == ".csv":
+        from apcc_graph.cli.calibrate_backbone import calibrate_backbone_file
+
+        if args.robot is None:
+            raise UserError(f"{path}: calibrating from backbone poses needs --robot robot.toml "
+                            "(its segment lengths say which markers are segment ends)")
+        lines.append(calibrate_backbone_file(path, args.robot, args.out))
+        return "\n".join(lines)
+    if args.robot is not None:
+        raise UserError("--robot applies to a backbone_poses.csv file only")
     if path.is_dir():
         from apcc_graph.calibration.photos import calibrate_images
 

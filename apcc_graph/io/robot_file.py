@@ -9,6 +9,7 @@ the file and the key (``segments[i].camera.fx``; indices are 0-based as in the T
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -97,15 +98,46 @@ def camera_from_table(table: TomlTable, mounting: bool = True) -> TipCamera:
 
 
 def robot_from_toml(data: dict[str, Any], path: str | Path = "<robot.toml>") -> Robot:
-    """Build a :class:`Robot` from parsed ``robot.toml`` data (``path`` is used in messages)."""
+    """Build a :class:`Robot` from parsed ``robot.toml`` data (``path`` is used in messages).
+    The optional ``[[markers]]`` tables are checked too (:func:`markers_from_toml`)."""
     top = TomlTable(path, "", data)
-    top.check_keys(("format", "segments"), required=("format", "segments"))
+    top.check_keys(("format", "segments", "markers"), required=("format", "segments"))
     top.check_format(ROBOT_FORMAT)
     segments, cameras = [], []
     for table in top.tables("segments"):
         segments.append(_segment_from(table))
         cameras.append(camera_from_table(table.table("camera")) if table.has("camera") else None)
+    markers_from_toml(data, path)
     return Robot(segments, cameras)
+
+
+def markers_from_toml(data: dict[str, Any], path: str | Path = "<robot.toml>"
+                      ) -> dict[float, np.ndarray]:
+    """The motion-capture marker offsets of parsed ``robot.toml`` data: arc length (metres) ->
+    ``backbone_T_marker`` (4x4), from the optional ``[[markers]]`` tables; empty without them.
+
+    Raises:
+        ValueError: a bad or repeated arc length, or a bad pose; the message names the key.
+    """
+    top = TomlTable(path, "", data)
+    if not top.has("markers"):
+        return {}
+    out: dict[float, np.ndarray] = {}
+    for table in top.tables("markers"):
+        table.check_keys(("arclength", "backbone_T_marker"),
+                         required=("arclength", "backbone_T_marker"))
+        arc = table.number("arclength")
+        if arc < 0.0:
+            raise table.error("arclength", f"expected an arc length >= 0 (metres), got {arc!r}")
+        if any(abs(arc - seen) < 1e-9 for seen in out):
+            raise table.error("arclength", f"a marker at {arc!r} m is already listed")
+        out[arc] = _pose_from(table.table("backbone_T_marker"))
+    return out
+
+
+def load_markers(path: str | Path) -> dict[float, np.ndarray]:
+    """The marker offsets of ``robot.toml`` (see :func:`markers_from_toml`)."""
+    return markers_from_toml(read_toml(path), path)
 
 
 def load_robot(path: str | Path) -> Robot:
@@ -151,8 +183,10 @@ def _pose_to(pose: np.ndarray) -> dict[str, list[float]]:
             "quaternion_wxyz": quaternion_for_file(pose[:3, :3])}
 
 
-def robot_to_toml(robot: Robot) -> dict[str, Any]:
-    """The ``robot.toml`` document of ``robot`` as a dict (degrees for angles)."""
+def robot_to_toml(robot: Robot, markers: Mapping[float, np.ndarray] | None = None
+                  ) -> dict[str, Any]:
+    """The ``robot.toml`` document of ``robot`` as a dict (degrees for angles), with the
+    marker offsets (arc length -> ``backbone_T_marker``) when given."""
     segments = []
     for seg, cam in zip(robot.segments, robot.cameras, strict=True):
         entry: dict[str, Any] = {
@@ -173,14 +207,21 @@ def robot_to_toml(robot: Robot) -> dict[str, Any]:
                 "tip_T_cam": _pose_to(cam.tip_T_cam),
             }
         segments.append(entry)
-    return {"format": ROBOT_FORMAT, "segments": segments}
+    document: dict[str, Any] = {"format": ROBOT_FORMAT, "segments": segments}
+    if markers:
+        document["markers"] = [{"arclength": float(arc), "backbone_T_marker": _pose_to(pose)}
+                               for arc, pose in sorted(markers.items())]
+    return document
 
 
-def save_robot(robot: Robot, path: str | Path) -> None:
+def save_robot(robot: Robot, path: str | Path,
+               markers: Mapping[float, np.ndarray] | None = None) -> None:
     """Write ``robot`` as ``robot.toml`` atomically (temporary file, then rename).
 
     Args:
         robot: the robot.
         path: destination file; its folder is created if needed.
+        markers: optional motion-capture marker offsets, arc length (metres) ->
+            ``backbone_T_marker`` (4x4), written as ``[[markers]]`` tables.
     """
-    atomic_write_bytes(path, tomli_w.dumps(robot_to_toml(robot)).encode("utf-8"))
+    atomic_write_bytes(path, tomli_w.dumps(robot_to_toml(robot, markers)).encode("utf-8"))
