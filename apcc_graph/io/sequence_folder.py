@@ -34,6 +34,7 @@ from apcc_graph.io.poses import (
     rotation_from_quaternion,
 )
 from apcc_graph.io.robot_file import load_robot, robot_to_toml
+from apcc_graph.io.truth_tips import load_truth_tips, truth_tips_csv
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence, Tracks
 
@@ -60,6 +61,10 @@ def frame_columns(n_segments: int, base: bool, thetas: bool, psis: bool) -> list
     return names
 
 
+TRUTH_TIPS_FILE = "truth_tips.csv"
+"""The measured segment-end poses of a real-motion replay (:mod:`apcc_graph.io.truth_tips`)."""
+
+
 # ------------------------------------------------------------------------------------ loading
 def load_sequence(path: str | Path) -> Sequence:
     """Read a sequence folder.
@@ -81,8 +86,11 @@ def load_sequence(path: str | Path) -> Sequence:
     timestamps, base, thetas, psis = _load_frames(folder / "frames.csv", robot.n_segments)
     tracks = _load_all_tracks(folder / "tracks", robot, len(timestamps))
     images = _find_images(folder / "images", robot, len(timestamps))
+    tips_file = folder / TRUTH_TIPS_FILE
+    tips = (load_truth_tips(tips_file, len(timestamps), robot.n_segments)
+            if tips_file.is_file() else None)
     return Sequence(robot, timestamps, tracks, world_T_base=base, thetas=thetas, psis=psis,
-                    images=images)
+                    images=images, truth_tips=tips)
 
 
 def _load_frames(
@@ -268,6 +276,10 @@ def save_sequence(sequence: Sequence, path: str | Path) -> None:
                              f"of this sequence ({shown}); save into an empty folder")
     atomic_write_bytes(folder / "robot.toml", tomli_w.dumps(robot_to_toml(robot)).encode())
     atomic_write_text(folder / "frames.csv", frames_csv(sequence))
+    if sequence.truth_tips is not None:
+        atomic_write_text(folder / TRUTH_TIPS_FILE, truth_tips_csv(sequence.truth_tips))
+    else:
+        (folder / TRUTH_TIPS_FILE).unlink(missing_ok=True)  # not this sequence's truth
     for cam in robot.camera_segments:
         trk = sequence.tracks.get(cam)
         atomic_write_text(tracks_dir / f"cam_{cam + 1}.csv", tracks_csv(trk))

@@ -136,6 +136,8 @@ class Sequence:
         thetas: ``(F, S)`` ground-truth bending angles (radians), or ``None``.
         psis: ``(F, S)`` ground-truth bending-plane angles (radians), or ``None``.
         images: camera -> {frame: image file}, or ``None``.
+        truth_tips: ``(F, S, 4, 4)`` measured ``world_T_tip`` of every segment end (a
+            real-motion replay's ground truth), or ``None``.
 
     Raises:
         ValueError: a value or shape that breaks the conventions; the message names the field.
@@ -150,6 +152,7 @@ class Sequence:
         thetas: ArrayLike | None = None,
         psis: ArrayLike | None = None,
         images: Mapping[int, Mapping[int, Path]] | None = None,
+        truth_tips: ArrayLike | None = None,
     ) -> None:
         if not isinstance(robot, Robot):
             raise ValueError(f"Sequence.robot: expected a Robot, got {type(robot).__name__}")
@@ -161,6 +164,7 @@ class Sequence:
         self.thetas = self._angles("thetas", thetas, n_frames, n_seg)
         self.psis = self._angles("psis", psis, n_frames, n_seg)
         self.images: dict[int, dict[int, Path]] = self._images(images or {}, robot, n_frames)
+        self.truth_tips: FloatArray | None = self._tips(truth_tips, n_frames, n_seg)
         self._offsets: dict[int, IntArray] = {}
         self._bearings: dict[int, FloatArray] = {}
 
@@ -213,6 +217,19 @@ class Sequence:
             base[f] = validate_pose(f"Sequence.world_T_base[{f}]", base[f])
         base.setflags(write=False)
         return base
+
+    @staticmethod
+    def _tips(values: ArrayLike | None, n_frames: int, n_seg: int) -> FloatArray | None:
+        if values is None:
+            return None
+        tips = np.array(values, dtype=float)
+        if tips.shape != (n_frames, n_seg, 4, 4):
+            raise ValueError(f"Sequence.truth_tips has shape {tips.shape}: expected "
+                             f"({n_frames}, {n_seg}, 4, 4)")
+        for f, i in np.ndindex(n_frames, n_seg):
+            tips[f, i] = validate_pose(f"Sequence.truth_tips[{f}, {i}]", tips[f, i])
+        tips.setflags(write=False)
+        return tips
 
     @staticmethod
     def _images(images: Mapping[int, Mapping[int, Path]], robot: Robot,

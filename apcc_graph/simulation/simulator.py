@@ -219,6 +219,25 @@ def _observe(rng: np.random.Generator, camera: TipCamera, pixels: FloatArray,
                         is_outlier[order])
 
 
+def observe(rng: np.random.Generator, robot: Robot, tips: FloatArray, points: FloatArray, *,
+            noise_px: float, outlier_fraction: float, blackout_fraction: float = 0.0,
+            track_lifetime: float | None = None, decimals: int | None = None,
+            progress: bool = False) -> tuple[dict[int, _CameraTruth], dict[int, FloatArray]]:
+    """What every tip camera riding on ``tips`` (``(F, S, 4, 4)`` world_T_tip) sees of the scene
+    ``points``: each camera's tracks with their ground truth, and its ``(F, 4, 4)`` poses."""
+    cameras, world_T_cam = {}, {}
+    for cam in robot.camera_segments:
+        camera = robot.cameras[cam]
+        assert camera is not None
+        world_T_cam[cam] = tips[:, cam] @ camera.tip_T_cam
+        pixels, visible = projections(points, camera, world_T_cam[cam], progress,
+                                       f"camera {cam + 1}")
+        visible, ids = _tracks_of(rng, visible, blackout_fraction, track_lifetime)
+        cameras[cam] = _observe(rng, camera, pixels, visible, ids, noise_px, outlier_fraction,
+                                decimals)
+    return cameras, world_T_cam
+
+
 def _assemble(robot: Robot, t: FloatArray, thetas: FloatArray, psis: FloatArray | None,
               base: FloatArray | None, *, cameras: dict[int, _CameraTruth],
               world_T_cam: dict[int, FloatArray], tips: FloatArray, points: FloatArray,
@@ -325,16 +344,11 @@ def simulate(
     centre = np.array([0.0, 0.0, 0.5 * sum(seg.length for seg in robot.segments)])
     points = scene_points(rng, scene, n_points, centre, depth_range, room_half_size)
 
-    cameras, world_T_cam = {}, {}
-    for cam in robot.camera_segments:
-        camera = robot.cameras[cam]
-        assert camera is not None
-        world_T_cam[cam] = tips[:, cam] @ camera.tip_T_cam
-        pixels, visible = projections(points, camera, world_T_cam[cam], progress,
-                                       f"camera {cam + 1}")
-        visible, ids = _tracks_of(rng, visible, blackout_fraction, track_lifetime)
-        cameras[cam] = _observe(rng, camera, pixels, visible, ids, noise_px, outlier_fraction,
-                                decimals)
+    cameras, world_T_cam = observe(rng, robot, tips, points, noise_px=noise_px,
+                                   outlier_fraction=outlier_fraction,
+                                   blackout_fraction=blackout_fraction,
+                                   track_lifetime=track_lifetime, decimals=decimals,
+                                   progress=progress)
     return _assemble(robot, t, thetas, psis, base, cameras=cameras, world_T_cam=world_T_cam,
                      tips=tips, points=points, centre=centre, room_half_size=room_half_size)
 
