@@ -204,8 +204,9 @@ def _warnings(layout: Layout, z: FloatArray, cov: FloatArray, arclengths: FloatA
                  if c >= 0 and reach[c - layout.n_globals] - abs(z[c])
                  < AT_BOUND * reach[c - layout.n_globals]]
         if ended:
-            out.append(f"the offset of the marker at {arc:g} m ended at its bound ({OFFSET_REACH:g} "
-                       f"prior sigmas) in {', '.join(ended)}: it absorbs model error there, not "
+            out.append(f"the offset of the marker at {arc:g} m ended at its bound "
+                       f"({OFFSET_REACH:g} prior sigmas) in {', '.join(ended)}: it absorbs "
+                       "model error there, not "
                        "a mounting offset")
         held = [what for c, what in zip(layout.offset_columns(m), OFFSET_NAMES, strict=True)
                 if c >= 0 and std[c] > PRIOR_DOMINATED * scales[c - layout.n_globals]]

@@ -34,10 +34,10 @@ OFFSET_REACH = 5.0
 
 def _pose_jacobian(rows_of: Callable[[FloatArray], FloatArray], bends: FloatArray,
                    base: FloatArray) -> FloatArray:
-    """``(N, S, 6, 2)`` derivative of each pose's rows by its own bending vector (the rows of a
-    pose and segment depend on that bending vector only, so one step moves all at once)."""
+    """``(..., rows, p)`` derivative of each block's rows by its own ``p`` unknowns (the rows of
+    a pose and segment depend on that bending vector only, so one step moves all at once)."""
     cols = []
-    for c in range(2):
+    for c in range(bends.shape[-1]):
         step = np.zeros_like(bends)
         step[..., c] = STEP
         cols.append((rows_of(bends + step) - base) / STEP)
@@ -46,11 +46,13 @@ def _pose_jacobian(rows_of: Callable[[FloatArray], FloatArray], bends: FloatArra
 
 def best_bends(rows_of: Callable[[FloatArray], FloatArray], start: FloatArray,
                max_iterations: int = 60) -> FloatArray:
-    """Each pose's bending vectors that minimise its own rows (damped Gauss-Newton, per pose).
+    """Each block's unknowns that minimise its own rows (damped Gauss-Newton, per block): a
+    pose's bending vector here, a frame's bends in :mod:`apcc_graph.evaluation.tip_floor`.
 
     Args:
-        rows_of: bends ``(N, S, 2)`` -> rows ``(N, S, 6)``.
-        start: ``(N, S, 2)`` first guess.
+        rows_of: unknowns ``(..., p)`` -> rows ``(..., r)``; a block's rows depend on its own
+            unknowns only.
+        start: ``(..., p)`` first guess.
         max_iterations: at most this many steps.
     """
     bends = start.copy()
@@ -60,8 +62,8 @@ def best_bends(rows_of: Callable[[FloatArray], FloatArray], start: FloatArray,
     for _ in range(max_iterations):
         jac = _pose_jacobian(rows_of, bends, rows)
         normal = np.einsum("...ri,...rj->...ij", jac, jac)
-        normal += damping[..., None, None] * np.eye(2) * (1.0 + np.trace(normal, axis1=-2,
-                                                                         axis2=-1))[..., None, None]
+        scale = 1.0 + np.trace(normal, axis1=-2, axis2=-1)
+        normal += (damping * scale)[..., None, None] * np.eye(bends.shape[-1])
         step = -np.linalg.solve(normal, np.einsum("...ri,...r->...i", jac, rows)[..., None])[..., 0]
         trial = bends + step
         trial_rows = rows_of(trial)

@@ -1,21 +1,28 @@
 """``apcc-graph bench``: benchmarks against named peers measured in the same run (figures, never
 tests). The benchmarks themselves are in :mod:`~apcc_graph.cli.bench_front_end`,
 :mod:`~apcc_graph.cli.bench_back_end`, :mod:`~apcc_graph.cli.bench_reliability` and
-:mod:`~apcc_graph.cli.bench_start`; their work
+:mod:`~apcc_graph.cli.bench_start` and :mod:`~apcc_graph.cli.bench_real`; their work
 in :mod:`apcc_graph.bench`."""
 
 from __future__ import annotations
 
 import argparse
 
-from apcc_graph.cli import bench_back_end, bench_front_end, bench_reliability, bench_start
+from apcc_graph.cli import (
+    bench_back_end,
+    bench_front_end,
+    bench_real,
+    bench_reliability,
+    bench_start,
+)
 from apcc_graph.cli.common import FORMATTER
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``bench`` and its benchmarks to the subcommands."""
     examples = [*bench_front_end.EXAMPLES.values(), *bench_back_end.EXAMPLES.values(),
-                *bench_reliability.EXAMPLES.values(), *bench_start.EXAMPLES.values()]
+                *bench_reliability.EXAMPLES.values(), *bench_start.EXAMPLES.values(),
+                *bench_real.EXAMPLES.values()]
     bench = commands.add_parser(
         "bench", help="benchmarks against named peers (figures, not tests)",
         description="Speed and accuracy figures of apcc_graph and of named peers measured in "
@@ -28,3 +35,4 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     bench_back_end.add_parsers(benches)
     bench_reliability.add_parsers(benches)
     bench_start.add_parsers(benches)
+    bench_real.add_parsers(benches)

@@ -16,7 +16,6 @@ from apcc_graph.cli.common import (
     check_output_folder,
     force_option,
     fraction,
-    frames_option,
     non_negative,
     out_option,
     positive,
@@ -39,16 +38,24 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "write the sequence folder (robot.toml, frames.csv with ground truth, tracks/).",
         epilog=EXAMPLE, formatter_class=FORMATTER,
         parents=[out_option("output sequence folder"), seed_option(0),
-                 force_option("write into a non-empty --out"), robot_option(),
-                 frames_option(minimum=2)],
+                 force_option("write into a non-empty --out"), robot_option()],
     )
+    simp.add_argument("--frames", type=at_least(2), default=None,
+                      help="number of frames (required, except with --motion POSES.csv)")
     simp.add_argument("--noise-px", type=non_negative, default=0.5,
                       help="pixel noise std (default 0.5)")
     simp.add_argument("--outliers", type=fraction, default=0.0,
                       help="fraction of wrong associations, 0 <= p < 1 (default 0)")
-    simp.add_argument("--fps", type=positive, default=30.0)
-    simp.add_argument("--motion", choices=("smooth", "paper"), default="smooth",
-                      help="smooth random motion, or the paper's random steps under 5 deg")
+    simp.add_argument("--fps", type=positive, default=None,
+                      help="frame rate (default 30; with --motion POSES.csv: the recording's "
+                      "own sample times, or resampled to this rate)")
+    simp.add_argument("--motion", default="smooth", metavar="{smooth,paper,POSES.csv}",
+                      help="smooth random motion, the paper's random steps under 5 deg, or a "
+                      "real robot's measured backbone poses: the tip cameras ride on its "
+                      "measured segment ends (ground truth in truth_tips.csv)")
+    simp.add_argument("--smoothing", type=non_negative, default=None,
+                      help="with --motion POSES.csv: width (s) of the local fit that removes "
+                      "the motion capture's noise (default 0.05; 0 interpolates)")
     simp.add_argument("--spatial", action="store_true", help="also vary the bending planes psi")
     simp.add_argument("--moving-base", action="store_true",
                       help="move the base (rotation up to 5 deg, translation up to 0.1 m)")
@@ -100,6 +107,15 @@ def run(args: argparse.Namespace) -> str:
     if image_options and not args.images:
         raise UserError(f"--{image_options[0].replace('_', '-')} applies to --images only")
     robot = load_robot(args.robot)
+    if args.motion not in ("smooth", "paper"):
+        from apcc_graph.cli.simulate_replay import run_replay
+
+        return run_replay(args, robot, out, scene)
+    if args.smoothing is not None:
+        raise UserError("--smoothing applies to --motion POSES.csv only")
+    if args.frames is None:
+        raise UserError("--frames is required (except with --motion POSES.csv)")
+    args.fps = 30.0 if args.fps is None else args.fps
     sim = simulate(
         robot, args.frames, noise_px=args.noise_px, outlier_fraction=args.outliers,
         seed=args.seed, fps=args.fps, motion=args.motion, spatial=args.spatial,

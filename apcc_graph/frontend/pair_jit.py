@@ -131,6 +131,11 @@ def grid_nodes(lo: float, hi: float, anchor: float, step: float) -> FloatArray:
         for i in range(count):
             out[i] = i * delta + lo
         out[count - 1] = hi
+        if anchor == anchor:  # an anchor at an end (a bend held at its limit) moves that end in
+            shift = step / 3.0 if anchor < 0.5 * (lo + hi) else -step / 3.0
+            for i in range(count):
+                if abs(out[i] - anchor) < step / 3.0:
+                    out[i] = anchor + shift
         return out
     k0, k1 = math.floor((lo - anchor) / step) - 1, math.ceil((hi - anchor) / step) + 1
     buf = np.empty(k1 - k0 + 2)

@@ -73,7 +73,11 @@ def _grid(lo: float, hi: float, anchor: float | None, step: float) -> FloatArray
     """Nodes from lo to hi about ``step`` apart, none within a third of a step of the anchor."""
     if anchor is None or not lo < anchor < hi:
         count = max(2, math.ceil((hi - lo) / step) + 1)
-        return np.linspace(lo, hi, count)
+        nodes = np.linspace(lo, hi, count)
+        if anchor is not None:  # an anchor at an end (a bend held at its limit) moves that end in
+            near = np.abs(nodes - anchor) < step / 3.0
+            nodes[near] = anchor + (step / 3.0 if anchor < 0.5 * (lo + hi) else -step / 3.0)
+        return nodes
     k = np.arange(math.floor((lo - anchor) / step) - 1, math.ceil((hi - anchor) / step) + 1)
     nodes = anchor + (k + 0.5) * step
     nodes = nodes[(nodes > lo) & (nodes < hi)]

@@ -1,0 +1,108 @@
+"""``apcc-graph bench real``: the estimators on a real robot's motion, beside the floor
+(docs/estimation.md, "Replaying a real robot's motion").
+
+For each recording: calibrate the robot from its backbone poses (k, delta_max, marker offsets),
+replay the measured motion with tip cameras seeing a simulated room, and estimate with the chain,
+the batch and the smoother from the floor's first configuration (the start given, with a prior).
+Each estimate's tips are compared with the measured tips beside the floor (the model's tips at the
+bends that best fit them); then the same for the model-exact version of the motion (the model's
+own tips at the floor's bends), where the floor is zero.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from apcc_graph.calibration.backbone_fit import fit_backbone
+from apcc_graph.estimation.methods import estimate
+from apcc_graph.evaluation.tip_floor import tip_errors, tip_floor
+from apcc_graph.io.backbone_poses import load_backbone_poses
+from apcc_graph.model.robot import Robot
+from apcc_graph.simulation.replay import measured_ends, replay_motion
+
+RECORDINGS = ("slow_free_space", "impulse_2")
+METHODS = ("chain", "batch", "smoother")
+
+
+@dataclass(frozen=True)
+class RealRow:
+    """One estimate's tip errors (metres, radians) on one version of one recording."""
+
+    recording: str
+    version: str
+    method: str
+    position: np.ndarray
+    tangent: np.ndarray
+    seconds: float
+
+
+def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers: float,
+                    seed: int, start_sigma: float, methods: tuple[str, ...]) -> list[RealRow]:
+    """Calibrate, replay, estimate and score one recording (module docstring)."""
+    name = poses_path.parent.name
+    poses = load_backbone_poses(poses_path)
+    cal = fit_backbone(poses, robot)
+    model = cal.robot(robot)
+    markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
+    ends = measured_ends(poses, model, markers)
+    options = dict(noise_px=noise_px, outlier_fraction=outliers, seed=seed)
+    real = replay_motion(model, ends, **options).simulation.sequence
+    floor = tip_floor(model, real.truth_tips)
+    exact = replay_motion(model, ends, model_tips=floor.tips, bends=floor.bends,
+                          **options).simulation.sequence
+    rows = [RealRow(name, "real", "floor", floor.errors.rms_position,
+                    floor.errors.rms_tangent, 0.0)]
+    for version, seq in (("real", real), ("model-exact", exact)):
+        for method in methods:
+            start = time.perf_counter()
+            est = estimate(seq, method=method, spatial=True, theta0=floor.thetas[0],
+                           psi0=floor.psis[0], theta0_sigma=start_sigma, threshold_px=noise_px)
+            err = tip_errors(model.forward(est.thetas, est.psis), seq.truth_tips)
+            rows.append(RealRow(name, version, method, err.rms_position, err.rms_tangent,
+                                time.perf_counter() - start))
+    return rows
+
+
+def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers: float = 0.1,
+                   seed: int = 0, start_sigma: float = math.radians(2.0),
+                   methods: tuple[str, ...] = METHODS,
+                   recordings: tuple[str, ...] = RECORDINGS) -> list[RealRow]:
+    """:func:`bench_recording` of each recording ``data/<name>/backbone_poses.csv``.
+
+    Raises:
+        ValueError: a recording's file is missing (named).
+    """
+    rows = []
+    for name in recordings:
+        path = Path(data) / name / "backbone_poses.csv"
+        if not path.is_file():
+            raise ValueError(f"{path}: no such file; --data names the folder of the real-robot "
+                             "recordings (data/real_tdcr in the repository)")
+        rows += bench_recording(path, robot, noise_px=noise_px, outliers=outliers, seed=seed,
+                                start_sigma=start_sigma, methods=methods)
+    return rows
+
+
+def format_real_bench(rows: list[RealRow]) -> str:
+    """The table: RMS tip position and tangent error per segment end, and the ratio to the
+    floor of the same recording."""
+    floors = {r.recording: r.position for r in rows if r.method == "floor"}
+    n_seg = len(rows[0].position)
+    head = "".join(f"{f'tip {i + 1} mm':>10}{'/floor':>8}{'deg':>7}" for i in range(n_seg))
+    lines = [f"{'recording':<17}{'motion':<13}{'method':<10}{head}{'time s':>9}"]
+    for r in rows:
+        cells = ""
+        for i in range(n_seg):
+            ratio = ("-" if r.version == "model-exact" or r.method == "floor"
+                     else f"{r.position[i] / max(floors[r.recording][i], 1e-12):.1f}x")
+            cells += (f"{r.position[i] * 1e3:>10.2f}{ratio:>8}"
+                      f"{math.degrees(r.tangent[i]):>7.2f}")
+        lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<10}{cells}{r.seconds:>9.1f}")
+    lines.append("floor: the calibrated model's tips at the bends that best fit the measured "
+                 "tips (zero on the model-exact motion)")
+    return "\n".join(lines)
