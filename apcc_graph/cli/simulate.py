@@ -50,6 +50,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                       help="frame rate (default 30; with --motion POSES.csv: the recording's "
                       "own sample times, or resampled to this rate)")
     simp.add_argument("--motion", default="smooth", metavar="{smooth,paper,POSES.csv}",
+                      type=_motion,
                       help="smooth random motion, the paper's random steps under 5 deg, or a "
                       "real robot's measured backbone poses: the tip cameras ride on its "
                       "measured segment ends (ground truth in truth_tips.csv)")
@@ -71,6 +72,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                       help="round pixels to this many decimals (default: full precision)")
     _add_image_options(simp)
     simp.set_defaults(run=run)
+
+
+def _motion(value: str) -> str:
+    """``--motion``: smooth, paper, or a backbone poses file (.csv)."""
+    if value in ("smooth", "paper") or value.lower().endswith(".csv"):
+        return value
+    raise argparse.ArgumentTypeError(f"{value!r}: expected smooth, paper, or a backbone poses "
+                                     "file (.csv)")
 
 
 def _add_image_options(simp: argparse.ArgumentParser) -> None:
