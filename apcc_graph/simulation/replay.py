@@ -106,8 +106,12 @@ def smooth_ends(ends: MeasuredEnds, frame_times: FloatArray, smoothing: float,
         poses = ends.world_T_end[ends.present[:, e], e]
         for f, t in enumerate(frame_times):
             near = np.flatnonzero(np.abs(times - t) <= reach)
+            if smoothing == 0.0:  # interpolation: the samples just before and after the frame
+                after = int(np.searchsorted(times, t))
+                near = np.unique(np.clip([after - 1, after], 0, len(times) - 1))
             gap = np.min(np.abs(times - t)) if len(times) else math.inf
-            if gap > max_gap or len(near) < MIN_SAMPLES or t < times[0] or t > times[-1]:
+            if gap > max_gap or (smoothing > 0.0 and len(near) < MIN_SAMPLES) or not (
+                    times[0] <= t <= times[-1]):
                 valid[f] = False
                 continue
             out[f, e] = _local_fit(times[near], poses[near], float(t), smoothing)

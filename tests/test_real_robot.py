@@ -1,0 +1,489 @@
+"""Tests of the real-robot tools on synthetic motion-capture data generated from the model.
+
+A two-segment robot (the real TDCR's lengths) sweeps both segments through 10..80 deg in
+changing bending planes; the backbone frames are the model's (``Robot.forward`` from a fixed base
+pose), and each motion-capture marker sits at a known offset ``backbone_T_marker`` from its
+backbone frame: the base, both segment ends, and a held-out marker half way along segment 1.
+On such data the calibration (:func:`fit_backbone`) must give back the model, the replay
+(:func:`replay_motion`) must put the cameras exactly on the model's tips, and the floor
+(:func:`tip_floor`) must be zero. The command line is run in-process through ``cli.main``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from apcc_graph.calibration.backbone_fit import BackboneCalibration, fit_backbone
+from apcc_graph.calibration.backbone_model import pose_matrices, segment_transform
+from apcc_graph.cli import main
+from apcc_graph.evaluation.tip_floor import tip_errors, tip_floor
+from apcc_graph.io import load_sequence, save_backbone_poses, save_sequence
+from apcc_graph.io.backbone_poses import BackbonePoses
+from apcc_graph.io.robot_file import load_markers, load_robot, save_robot
+from apcc_graph.model.bending import bending_transform
+from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
+from apcc_graph.simulation.replay import Replay, measured_ends, replay_motion
+
+RATE = 16.7
+"""Motion-capture sample rate (Hz)."""
+LENGTH = 0.233
+CAMERA = TipCamera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+THETA_MAX = math.radians(120.0)
+ROBOT = Robot([Segment(LENGTH, k=0.18, delta_max=math.radians(12.0), theta_max=THETA_MAX),
+               Segment(LENGTH, k=0.3, delta_max=math.radians(-6.0), theta_max=THETA_MAX)],
+              [CAMERA, CAMERA])
+ARCLENGTHS = np.array([0.0, 0.5 * LENGTH, LENGTH, 2.0 * LENGTH])
+"""Base, held-out midpoint of segment 1, end of segment 1, end of segment 2."""
+ENDS = [0, 2, 3]
+"""Columns of :data:`ARCLENGTHS` of the base and the segment-end markers."""
+OFFSET_ROTVECS = np.radians([[2.0, -1.5, 0.0],  # the base's roll about z is the gauge: 0
+                             [1.0, 2.5, -3.0],
+                             [-2.0, 1.0, 4.0],
+                             [1.5, -2.5, 2.0]])
+OFFSET_TRANSLATIONS = 1e-3 * np.array([[3.0, -2.0, 4.0],
+                                       [-4.0, 3.0, 2.0],
+                                       [2.0, 5.0, -3.0],
+                                       [-3.0, -4.0, 5.0]])
+OFFSETS = pose_matrices(OFFSET_ROTVECS, OFFSET_TRANSLATIONS)
+"""``backbone_T_marker`` of each marker: a few millimetres and degrees."""
+WORLD_T_BASE = pose_matrices(np.array([0.1, -0.2, 0.3]), np.array([0.5, -0.3, 0.8]))
+TRUE_MARKERS = {float(ARCLENGTHS[m]): OFFSETS[m] for m in ENDS}
+"""The offsets as ``robot.toml``'s ``[[markers]]`` hold them (arc length -> pose)."""
+
+
+# ------------------------------------------------------------------------------------ helpers
+def _times(n: int) -> np.ndarray:
+    return np.arange(n) / RATE
+
+
+def _sweep(times: np.ndarray, cycles: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """``(T, 2)`` thetas through 10..80 deg and psis swinging over ~140 and ~230 deg: smooth
+    sinusoids of time, ``cycles`` periods of the first over the recording."""
+    w = 2.0 * np.pi * cycles * (times - times[0]) / (times[-1] - times[0])
+    thetas = np.radians(np.stack([45.0 + 35.0 * np.sin(w),
+                                  45.0 + 35.0 * np.sin(1.3 * w + 2.0)], axis=1))
+    psis = np.stack([0.4 + 1.2 * np.sin(0.7 * w + 0.5),
+                     -1.0 + 2.0 * np.sin(0.5 * w + 1.0)], axis=1)
+    return thetas, psis
+
+
+def _bends(thetas: np.ndarray, psis: np.ndarray) -> np.ndarray:
+    return np.stack([thetas * np.cos(psis), thetas * np.sin(psis)], axis=-1)
+
+
+def _midpoint_frames(thetas: np.ndarray, psis: np.ndarray) -> np.ndarray:
+    """``base_T_backbone`` half way along segment 1: the model's first half of the segment
+    (backbone_heldout.py: length L / 2, the same k and deviation rate, bending vector b / 2)."""
+    seg = ROBOT.segments[0]
+    half = Segment(0.5 * seg.length, seg.k, seg.delta_max, seg.theta_max)
+    return segment_transform(0.5 * _bends(thetas, psis)[:, 0], half, 0.5 * seg.length)
+
+
+def _poses(times: np.ndarray, backbone: np.ndarray) -> BackbonePoses:
+    """Marker poses ``backbone @ offset`` of ``(T, 4, 4, 4)`` backbone frames, all present."""
+    return BackbonePoses(times, ARCLENGTHS, backbone @ OFFSETS,
+                         np.ones((len(times), len(ARCLENGTHS)), dtype=bool))
+
+
+def _model_poses(n: int, cycles: float = 1.0) -> tuple[BackbonePoses, np.ndarray, np.ndarray]:
+    """Model-exact backbone poses of the sweep, and its thetas and psis."""
+    times = _times(n)
+    thetas, psis = _sweep(times, cycles)
+    tips = ROBOT.forward(thetas, psis, WORLD_T_BASE)
+    base = np.broadcast_to(WORLD_T_BASE, (n, 4, 4))
+    backbone = np.stack([base, WORLD_T_BASE @ _midpoint_frames(thetas, psis), tips[:, 0],
+                         tips[:, 1]], axis=1)
+    return _poses(times, backbone), thetas, psis
+
+
+def _noisy(poses: BackbonePoses, rng: np.random.Generator, position: float,
+           angle: float = 0.0) -> BackbonePoses:
+    """``poses`` with white Gaussian noise: ``position`` metres per coordinate, ``angle``
+    radians per axis of a rotation vector applied in the marker frame."""
+    world = poses.world_T_marker.copy()
+    shape = world.shape[:2]
+    world[..., :3, 3] += rng.normal(0.0, position, (*shape, 3))
+    if angle > 0.0:
+        turn = Rotation.from_rotvec(rng.normal(0.0, angle, (math.prod(shape), 3)))
+        world[..., :3, :3] = world[..., :3, :3] @ turn.as_matrix().reshape(*shape, 3, 3)
+    return BackbonePoses(poses.timestamps, poses.arclengths, world, poses.present)
+
+
+def _exact_replay(poses: BackbonePoses, **options: object) -> Replay:
+    ends = measured_ends(poses, ROBOT, TRUE_MARKERS)
+    return replay_motion(ROBOT, ends, **{"smoothing": 0.0, "noise_px": 1.0,
+                                         "outlier_fraction": 0.0, "decimals": None, **options})
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+@pytest.fixture(scope="module")
+def model_exact() -> tuple[BackbonePoses, np.ndarray, np.ndarray]:
+    return _model_poses(120)
+
+
+@pytest.fixture(scope="module")
+def exact_fit(model_exact: tuple[BackbonePoses, np.ndarray, np.ndarray]
+              ) -> BackboneCalibration:
+    # The sweep hardly tells k, delta_max and the markers' offsets along the backbone tangent
+    # apart (the fit's own warnings: correlations 0.99 to 1.000; the smallest singular value of
+    # the whitened Jacobian is ~3 against ~2e4 for the largest). So even on noise-free data any
+    # real prior on the offsets moves the optimum along that direction: the default prior
+    # (3 deg, 3 mm) leaves k off by ~7e-3 and delta_max by ~2 deg, (30 deg, 5 cm) still by
+    # ~3e-3 and ~1 deg, and (3 rad, 5 m) by ~1e-6. A flat prior (100 rad, 100 m) leaves the
+    # data alone: k, delta_max and the offsets come back to ~1e-8.
+    return fit_backbone(model_exact[0], ROBOT, offset_prior=(100.0, 100.0))
+
+
+# -------------------------------------------------------------------------------- calibration
+def test_calibration_recovers_model_parameters_noise_free(exact_fit: BackboneCalibration
+                                                          ) -> None:
+    cal = exact_fit
+    for fitted, truth in zip(cal.segments, ROBOT.segments, strict=True):
+        assert fitted.length == truth.length and fitted.theta_max == truth.theta_max
+        assert abs(fitted.k - truth.k) < 1e-6
+        assert abs(fitted.delta_max - truth.delta_max) < 1e-6
+    np.testing.assert_allclose(cal.marker_arclengths, ARCLENGTHS[ENDS])
+    assert np.abs(cal.backbone_T_marker[:, :3, 3] - OFFSET_TRANSLATIONS[ENDS]).max() < 1e-6
+    fitted_rot = Rotation.from_matrix(cal.backbone_T_marker[:, :3, :3])
+    angle = (fitted_rot.inv() * Rotation.from_rotvec(OFFSET_ROTVECS[ENDS])).magnitude()
+    assert angle.max() < 1e-6
+    assert cal.offset_std[0, 2] == 0.0  # the base marker's roll: the gauge
+    assert len(cal.sample_times) == 120 and cal.skipped == 0
+    for apcc, pcc in zip(cal.apcc, cal.pcc, strict=True):
+        assert apcc.rms_position < 1e-8 and apcc.rms_tangent < 1e-7
+        assert apcc.rms_position <= pcc.rms_position and apcc.rms_tangent <= pcc.rms_tangent
+    assert not [w for w in cal.warnings if "bound" in w]
+
+
+def test_calibration_fits_the_sweeps_bends(exact_fit: BackboneCalibration,
+                                            model_exact: tuple[BackbonePoses, np.ndarray,
+                                                               np.ndarray]) -> None:
+    _, thetas, psis = model_exact
+    bends = _bends(thetas, psis)
+    for i, apcc in enumerate(exact_fit.apcc):
+        assert np.abs(apcc.bends - bends[:, i]).max() < 1e-6
+    # PCC is not the model: its residuals are millimetres and degrees, not zero
+    assert min(p.rms_position for p in exact_fit.pcc) > 1e-3
+    assert min(p.rms_tangent for p in exact_fit.pcc) > math.radians(0.5)
+
+
+def test_calibration_with_noise_is_within_three_sigma(
+        model_exact: tuple[BackbonePoses, np.ndarray, np.ndarray]) -> None:
+    rng = np.random.default_rng(7)
+    poses = _noisy(model_exact[0], rng, 0.5e-3, math.radians(0.3))
+    cal = fit_backbone(poses, ROBOT)
+    for i, (fitted, truth) in enumerate(zip(cal.segments, ROBOT.segments, strict=True)):
+        assert 0.0 < cal.k_std[i] < 0.05 and 0.0 < cal.delta_max_std[i] < math.radians(5.0)
+        assert abs(fitted.k - truth.k) < 3.0 * cal.k_std[i], (i, fitted.k, cal.k_std[i])
+        assert abs(fitted.delta_max - truth.delta_max) < 3.0 * cal.delta_max_std[i], \
+            (i, fitted.delta_max, cal.delta_max_std[i])
+    # the noise is there: the residuals are of its size, not zero
+    for apcc in cal.apcc:
+        assert 2e-4 < apcc.rms_position < 3e-3
+
+
+def test_a_parameter_at_its_bound_warns() -> None:
+    """Segment 2 shortens as it bends (its end pulled in by ``1 - 0.15 theta^2``, 30% at 80 deg):
+    no k inside (0, 0.5) explains that."""
+    n = 60
+    times = _times(n)
+    thetas, psis = _sweep(times)
+    bends = _bends(thetas, psis)
+    chain = [np.broadcast_to(WORLD_T_BASE, (n, 4, 4))]
+    for i, seg in enumerate(ROBOT.segments):
+        body = bending_transform(bends[:, i, 0], bends[:, i, 1], seg).copy()
+        if i == 1:
+            body[:, :3, 3] *= (1.0 - 0.15 * thetas[:, i] ** 2)[:, None]
+        chain.append(chain[-1] @ body)
+    columns = np.array(ENDS)
+    poses = BackbonePoses(times, ARCLENGTHS[columns], np.stack(chain, axis=1) @ OFFSETS[columns],
+                          np.ones((n, 3), dtype=bool))
+    cal = fit_backbone(poses, ROBOT)
+    k2 = cal.segments[1].k
+    assert min(k2 - 1e-3, 0.499 - k2) < 1e-3
+    bound = [w for w in cal.warnings if w.startswith("segment 2: k = ") and "bound" in w]
+    assert len(bound) == 1 and f"{k2:.4f}" in bound[0], cal.warnings
+    assert not [w for w in cal.warnings if w.startswith("segment 1: k = ")]
+
+
+def test_held_out_midpoint_is_placed(exact_fit: BackboneCalibration) -> None:
+    (mid,) = exact_fit.held_out
+    assert mid.arclength == pytest.approx(0.5 * LENGTH)
+    assert mid.segment == 0 and mid.fraction == pytest.approx(0.5)
+    assert len(mid.apcc_position) == 120
+    apcc_position, apcc_tangent, pcc_position, pcc_tangent = mid.rms()
+    assert apcc_position < 1e-6 and apcc_tangent < 1e-6
+    # PCC, with its own bends and offsets, does not place it: the test tells the models apart
+    assert pcc_position > 1e-4
+
+
+# ------------------------------------------------------------------------------------- replay
+def test_replay_of_model_exact_motion_reprojects_to_the_noise(
+        model_exact: tuple[BackbonePoses, np.ndarray, np.ndarray]) -> None:
+    poses, thetas, psis = model_exact
+    rep = _exact_replay(poses)
+    sim, seq = rep.simulation, rep.simulation.sequence
+    assert rep.dropped == 0 and seq.n_frames == 120
+    np.testing.assert_allclose(seq.timestamps, poses.timestamps - poses.timestamps[0],
+                               atol=1e-12)
+    # the replay's world is the (constant) base frame: the model's tips from the identity
+    tips = ROBOT.forward(thetas, psis)
+    assert seq.truth_tips is not None
+    assert np.abs(seq.truth_tips - tips).max() < 1e-9
+    assert seq.thetas is None and seq.psis is None
+    assert seq.cameras == (0, 1)
+    for cam in seq.cameras:
+        world_T_cam = tips[:, cam] @ CAMERA.tip_T_cam
+        assert np.abs(sim.world_T_cam[cam] - world_T_cam).max() < 1e-9
+        tracks = seq.tracks[cam]
+        assert len(tracks) > 100 * seq.n_frames
+        assert not sim.outliers[cam].any()
+        rot, pos = world_T_cam[tracks.frames, :3, :3], world_T_cam[tracks.frames, :3, 3]
+        points = sim.points_world[sim.landmarks[cam]]
+        in_cam = np.einsum("nji,nj->ni", rot, points - pos)
+        predicted = CAMERA.project(in_cam)
+        assert np.abs(sim.clean_uv[cam] - predicted).max() < 1e-6
+        rms_uv = np.sqrt(np.mean((tracks.uv - predicted) ** 2, axis=0))
+        assert np.all(np.abs(rms_uv - 1.0) < 0.1), rms_uv
+
+
+def test_replay_smoothing_removes_jitter() -> None:
+    # A slow motion (one period in 14 s, tips moving at most ~0.15 m/s): the smoothing's own
+    # lag on the curvature of the motion stays well under the 0.5 mm noise.
+    poses, thetas, psis = _model_poses(240, cycles=1.0)
+    noisy = _noisy(poses, np.random.default_rng(3), 0.5e-3)
+    clean = ROBOT.forward(thetas, psis)
+    errors = {}
+    for smoothing in (0.0, 0.05):
+        rep = _exact_replay(noisy, smoothing=smoothing, n_points=200)
+        assert rep.dropped == 0
+        tips = rep.simulation.sequence.truth_tips
+        assert tips is not None
+        errors[smoothing] = _rms(tips[..., :3, 3] - clean[..., :3, 3])
+    # raw samples: the noise itself (0.5 mm per coordinate, plus a little from the mean base)
+    assert 0.4e-3 < errors[0.0] < 0.6e-3
+    assert errors[0.05] < 0.8 * errors[0.0], errors
+
+
+def _with_gap(poses: BackbonePoses, start: float, stop: float, marker: int = 2
+              ) -> tuple[BackbonePoses, np.ndarray]:
+    """``poses`` with ``marker`` (default: the end of segment 1) lost over ``[start, stop)``."""
+    gap = (poses.timestamps >= start) & (poses.timestamps < stop)
+    present = poses.present.copy()
+    present[gap, marker] = False
+    world = poses.world_T_marker.copy()
+    world[gap, marker] = np.nan
+    return BackbonePoses(poses.timestamps, poses.arclengths, world, present), gap
+
+
+def _interpolated(two: np.ndarray, times: np.ndarray, t: float) -> np.ndarray:
+    """The module docstring's interpolation of two ``(4, 4)`` poses at ``times`` to ``t``:
+    about the nearer one, the rotation vector and translation to each, weighted linearly."""
+    ref = two[int(np.argmin(np.abs(times - t)))]
+    a = (t - times[0]) / (times[1] - times[0])
+    rotvecs = Rotation.from_matrix(ref[:3, :3].T @ two[:, :3, :3]).as_rotvec()
+    out = np.eye(4)
+    out[:3, :3] = ref[:3, :3] @ Rotation.from_rotvec((1.0 - a) * rotvecs[0]
+                                                     + a * rotvecs[1]).as_matrix()
+    out[:3, 3] = ref[:3, 3] + (1.0 - a) * (two[0, :3, 3] - ref[:3, 3]) + a * (two[1, :3, 3]
+                                                                              - ref[:3, 3])
+    return out
+
+
+def test_replay_without_smoothing_interpolates_between_samples(
+        model_exact: tuple[BackbonePoses, np.ndarray, np.ndarray]) -> None:
+    poses, thetas, psis = model_exact
+    times = poses.timestamps
+    rep = _exact_replay(poses, fps=2.5 * RATE, n_points=200)
+    seq = rep.simulation.sequence
+    assert rep.dropped == 0
+    frame_times = np.arange(seq.n_frames) / (2.5 * RATE)
+    np.testing.assert_allclose(seq.timestamps, frame_times, atol=1e-9)
+    assert frame_times[-1] <= times[-1] - times[0] < frame_times[-1] + 1.0 / (2.5 * RATE)
+    tips = ROBOT.forward(thetas, psis)
+    assert seq.truth_tips is not None
+    for f in (1, 2, 3, 77, len(frame_times) - 2):
+        t = frame_times[f] + times[0]
+        hi = int(np.searchsorted(times, t))
+        for i in range(2):
+            expected = _interpolated(tips[[hi - 1, hi], i], times[[hi - 1, hi]], t)
+            assert np.abs(seq.truth_tips[f, i] - expected).max() < 1e-9
+
+
+def test_replay_drops_frames_in_a_gap(tmp_path: Path,
+                                      model_exact: tuple[BackbonePoses, np.ndarray, np.ndarray]
+                                      ) -> None:
+    poses, thetas, psis = model_exact
+    times = poses.timestamps
+    holey, gap = _with_gap(poses, 3.0, 3.6)  # 0.6 s of the end of segment 1 lost
+    rep = _exact_replay(holey, max_gap=0.25)
+    seq = rep.simulation.sequence
+    assert rep.dropped > 0
+    assert seq.n_frames == len(times) - rep.dropped
+    kept = np.round((seq.timestamps + times[0]) * RATE).astype(int)
+    np.testing.assert_allclose(seq.timestamps, times[kept] - times[0], atol=1e-12)
+    # every frame further than max_gap from all samples of that end is dropped; the frames
+    # dropped all lie in the gap
+    seen = times[~gap]
+    far = np.array([np.min(np.abs(seen - t)) > 0.25 for t in times])
+    assert far.any() and not far[kept].any()
+    assert gap[np.setdiff1d(np.arange(len(times)), kept)].all()
+    # the frames kept outside the gap are exact
+    tips = ROBOT.forward(thetas, psis)[kept]
+    outside = ~gap[kept]
+    assert seq.truth_tips is not None
+    assert np.abs(seq.truth_tips[outside] - tips[outside]).max() < 1e-9
+    save_sequence(seq, tmp_path / "seq")
+    loaded = load_sequence(tmp_path / "seq")
+    assert loaded.n_frames == len(times) - rep.dropped < len(times)
+
+
+def test_replay_without_smoothing_interpolates_across_a_gap(
+        model_exact: tuple[BackbonePoses, np.ndarray, np.ndarray]) -> None:
+    poses, thetas, psis = model_exact
+    times = poses.timestamps
+    holey, gap = _with_gap(poses, 3.0, 3.6)
+    before, after = np.flatnonzero(gap)[0] - 1, np.flatnonzero(gap)[-1] + 1
+    seq = _exact_replay(holey, max_gap=0.25).simulation.sequence
+    kept = np.round((seq.timestamps + times[0]) * RATE).astype(int)
+    frame = int(np.flatnonzero(kept == before + 2)[0])  # 0.12 s into the gap, kept
+    expected = _interpolated(ROBOT.forward(thetas, psis)[[before, after], 0],
+                             times[[before, after]], times[before + 2])
+    assert seq.truth_tips is not None
+    assert np.abs(seq.truth_tips[frame, 0] - expected).max() < 1e-9
+
+
+# -------------------------------------------------------------------------- tip errors, floor
+def test_tip_errors_hand_computed() -> None:
+    measured = np.tile(np.eye(4), (1, 3, 1, 1))
+    measured[0, :, :3, 3] = [[0.1, 0.0, 0.2], [0.0, 0.0, 0.4], [0.2, 0.1, 0.3]]
+    estimated = measured.copy()
+    estimated[0, 0, :3, 3] += [3e-3, 4e-3, 0.0]
+    estimated[0, 1, :3, :3] = Rotation.from_rotvec([math.radians(10.0), 0.0, 0.0]).as_matrix()
+    # a roll about the backbone's own tangent is not a tangent error
+    estimated[0, 2, :3, :3] = Rotation.from_rotvec([0.0, 0.0, math.radians(30.0)]).as_matrix()
+    errors = tip_errors(estimated, measured)
+    np.testing.assert_allclose(errors.position, [[5e-3, 0.0, 0.0]], atol=1e-15)
+    np.testing.assert_allclose(errors.tangent, [[0.0, math.radians(10.0), 0.0]], atol=1e-12)
+    np.testing.assert_allclose(errors.rms_position, [5e-3, 0.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(errors.rms_tangent, [0.0, math.radians(10.0), 0.0], atol=1e-12)
+    with pytest.raises(ValueError, match="same"):
+        tip_errors(estimated[:, :2], measured)
+
+
+def test_floor_is_zero_on_model_tips_and_recovers_bends() -> None:
+    times = _times(60)
+    thetas, psis = _sweep(times)
+    bends = _bends(thetas, psis)
+    for base in (None, np.broadcast_to(WORLD_T_BASE, (60, 4, 4))):
+        floor = tip_floor(ROBOT, ROBOT.forward(thetas, psis, base), base)
+        assert floor.errors.position.max() < 1e-9
+        assert floor.errors.tangent.max() < 1e-8
+        assert np.abs(floor.bends - bends).max() < 1e-8
+        np.testing.assert_allclose(floor.thetas, thetas, atol=1e-8)
+    # on tips the model cannot reach the floor is not zero, and no worse than the true bends
+    shifted = ROBOT.forward(thetas, psis).copy()
+    shifted[:, 1, :3, 3] += [1e-3, 0.0, 0.0]
+    floor = tip_floor(ROBOT, shifted)
+    truth_errors = tip_errors(ROBOT.forward(thetas, psis), shifted)
+    assert floor.errors.rms_position.max() > 1e-5
+    assert np.sum(floor.errors.position**2) < np.sum(truth_errors.position**2)
+
+
+# -------------------------------------------------------------------------------- truth tips
+def test_truth_tips_round_trip(tmp_path: Path) -> None:
+    poses, _, _ = _model_poses(20)
+    seq = _exact_replay(poses, n_points=300).simulation.sequence
+    save_sequence(seq, tmp_path / "seq")
+    loaded = load_sequence(tmp_path / "seq")
+    assert loaded.truth_tips is not None and seq.truth_tips is not None
+    assert np.abs(loaded.truth_tips - seq.truth_tips).max() < 1e-12
+    assert loaded.n_frames == 20 and loaded.thetas is None
+    for cam in seq.cameras:
+        assert loaded.tracks[cam].equals(seq.tracks[cam]) or np.allclose(
+            loaded.tracks[cam].uv, seq.tracks[cam].uv, atol=1e-9)
+
+
+def test_truth_tips_missing_row_is_refused(tmp_path: Path) -> None:
+    poses, _, _ = _model_poses(5)
+    save_sequence(_exact_replay(poses, n_points=300).simulation.sequence, tmp_path / "seq")
+    path = tmp_path / "seq" / "truth_tips.csv"
+    lines = path.read_text().splitlines()
+    assert len(lines) == 1 + 5 * 2
+    del lines[1 + 2 * 3]  # frame 3, segment 1
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError) as info:
+        load_sequence(tmp_path / "seq")
+    message = str(info.value)
+    assert str(path) in message and "frame 3, segment 1" in message
+
+
+# ------------------------------------------------------------------------------ command line
+def test_calibrate_simulate_estimate_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture[str]
+                                              ) -> None:
+    poses, _, _ = _model_poses(60)
+    poses_file, robot_file = tmp_path / "poses.csv", tmp_path / "robot.toml"
+    save_backbone_poses(poses, poses_file)
+    nominal = Robot([Segment(LENGTH, theta_max=THETA_MAX)] * 2, [CAMERA, CAMERA])
+    save_robot(nominal, robot_file)
+    calibrated = tmp_path / "out.toml"
+    assert main(["calibrate", str(poses_file), "--robot", str(robot_file),
+                 "--output", str(calibrated)]) == 0
+    out = capsys.readouterr().out
+    assert "APCC" in out and "PCC" in out and "held-out" in out
+    assert "[[markers]]" in calibrated.read_text()
+    markers = load_markers(calibrated)
+    assert sorted(markers) == pytest.approx(list(ARCLENGTHS[ENDS]))
+    for arc, pose in markers.items():  # across the tangent the offsets are well measured
+        truth = TRUE_MARKERS[min(TRUE_MARKERS, key=lambda a: abs(a - arc))]
+        assert np.abs(pose[:2, 3] - truth[:2, 3]).max() < 0.5e-3
+    robot = load_robot(calibrated)
+    assert robot.cameras == nominal.cameras and robot.segments != nominal.segments
+
+    seq_dir = tmp_path / "seq"
+    assert main(["simulate", "--motion", str(poses_file), "--robot", str(calibrated),
+                 "--out", str(seq_dir), "--noise-px", "1", "--outliers", "0.1",
+                 "--seed", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "60 frames" in out and "0 dropped" in out and "floor" in out
+    assert (seq_dir / "truth_tips.csv").is_file()
+    seq = load_sequence(seq_dir)
+    assert seq.truth_tips is not None and seq.n_frames == 60
+    floor = tip_floor(seq.robot, seq.truth_tips)
+    assert floor.errors.rms_position.max() < 1e-3  # the calibrated model fits the motion
+    theta0 = ",".join(f"{v:.4f}" for v in np.degrees(floor.thetas[0]))
+    psi0 = ",".join(f"{v:.4f}" for v in np.degrees(floor.psis[0]))
+    est_dir = tmp_path / "est"
+    assert main(["estimate", str(seq_dir), "--method", "chain", "--spatial",
+                 f"--theta0-deg={theta0}", f"--psi0-deg={psi0}", "--out", str(est_dir)]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(est_dir), "--truth", str(seq_dir)]) == 0
+    out = capsys.readouterr().out
+    assert "floor" in out and "tip errors" in out
+    rows = [line.split() for line in out.splitlines() if line.strip()[:2] in ("1 ", "2 ")]
+    assert len(rows) == 2
+    for row in rows:  # estimated tips are within centimetres, and no better than the floor
+        position, floor_mm = float(row[1]), float(row[2])
+        assert floor_mm <= position < 20.0
+
+
+def test_calibrate_backbone_poses_needs_robot(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    poses, _, _ = _model_poses(5)
+    poses_file = tmp_path / "poses.csv"
+    save_backbone_poses(poses, poses_file)
+    assert main(["calibrate", str(poses_file)]) == 1
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and "--robot" in err[0] and str(poses_file) in err[0]
+    assert "Traceback" not in captured.err and captured.out == ""
