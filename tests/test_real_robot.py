@@ -163,6 +163,8 @@ def test_calibration_recovers_model_parameters_noise_free(exact_fit: BackboneCal
         assert apcc.rms_position < 1e-8 and apcc.rms_tangent < 1e-7
         assert apcc.rms_position <= pcc.rms_position and apcc.rms_tangent <= pcc.rms_tangent
     assert not [w for w in cal.warnings if "bound" in w]
+    # the near-degeneracy that makes the flat prior necessary (fixture comment) is reported
+    assert any("cannot be told apart" in w and "translation z" in w for w in cal.warnings)
 
 
 def test_calibration_fits_the_sweeps_bends(exact_fit: BackboneCalibration,
@@ -239,12 +241,12 @@ def test_replay_of_model_exact_motion_reprojects_to_the_noise(
     # the replay's world is the (constant) base frame: the model's tips from the identity
     tips = ROBOT.forward(thetas, psis)
     assert seq.truth_tips is not None
-    assert np.abs(seq.truth_tips - tips).max() < 1e-9
+    assert np.abs(seq.truth_tips - tips).max() < 1e-12  # measured: ~2e-15
     assert seq.thetas is None and seq.psis is None
     assert seq.cameras == (0, 1)
     for cam in seq.cameras:
         world_T_cam = tips[:, cam] @ CAMERA.tip_T_cam
-        assert np.abs(sim.world_T_cam[cam] - world_T_cam).max() < 1e-9
+        assert np.abs(sim.world_T_cam[cam] - world_T_cam).max() < 1e-12
         tracks = seq.tracks[cam]
         assert len(tracks) > 100 * seq.n_frames
         assert not sim.outliers[cam].any()
@@ -252,14 +254,14 @@ def test_replay_of_model_exact_motion_reprojects_to_the_noise(
         points = sim.points_world[sim.landmarks[cam]]
         in_cam = np.einsum("nji,nj->ni", rot, points - pos)
         predicted = CAMERA.project(in_cam)
-        assert np.abs(sim.clean_uv[cam] - predicted).max() < 1e-6
+        assert np.abs(sim.clean_uv[cam] - predicted).max() < 1e-9  # measured: ~1e-12 px
         rms_uv = np.sqrt(np.mean((tracks.uv - predicted) ** 2, axis=0))
         assert np.all(np.abs(rms_uv - 1.0) < 0.1), rms_uv
 
 
 def test_replay_smoothing_removes_jitter() -> None:
-    # A slow motion (one period in 14 s, tips moving at most ~0.15 m/s): the smoothing's own
-    # lag on the curvature of the motion stays well under the 0.5 mm noise.
+    # A slow motion (one period in 14 s): the local linear fit's own error on the curvature of
+    # the motion stays well under the 0.5 mm noise.
     poses, thetas, psis = _model_poses(240, cycles=1.0)
     noisy = _noisy(poses, np.random.default_rng(3), 0.5e-3)
     clean = ROBOT.forward(thetas, psis)
@@ -272,7 +274,7 @@ def test_replay_smoothing_removes_jitter() -> None:
         errors[smoothing] = _rms(tips[..., :3, 3] - clean[..., :3, 3])
     # raw samples: the noise itself (0.5 mm per coordinate, plus a little from the mean base)
     assert 0.4e-3 < errors[0.0] < 0.6e-3
-    assert errors[0.05] < 0.8 * errors[0.0], errors
+    assert errors[0.05] < 0.75 * errors[0.0], errors  # measured: 0.31 vs 0.51 mm
 
 
 def _with_gap(poses: BackbonePoses, start: float, stop: float, marker: int = 2
@@ -332,12 +334,11 @@ def test_replay_drops_frames_in_a_gap(tmp_path: Path,
     assert seq.n_frames == len(times) - rep.dropped
     kept = np.round((seq.timestamps + times[0]) * RATE).astype(int)
     np.testing.assert_allclose(seq.timestamps, times[kept] - times[0], atol=1e-12)
-    # every frame further than max_gap from all samples of that end is dropped; the frames
-    # dropped all lie in the gap
+    # exactly the frames further than max_gap from every sample of that end are dropped
     seen = times[~gap]
     far = np.array([np.min(np.abs(seen - t)) > 0.25 for t in times])
-    assert far.any() and not far[kept].any()
-    assert gap[np.setdiff1d(np.arange(len(times)), kept)].all()
+    assert rep.dropped == far.sum() == 2
+    np.testing.assert_array_equal(kept, np.flatnonzero(~far))
     # the frames kept outside the gap are exact
     tips = ROBOT.forward(thetas, psis)[kept]
     outside = ~gap[kept]
@@ -387,10 +388,11 @@ def test_floor_is_zero_on_model_tips_and_recovers_bends() -> None:
     bends = _bends(thetas, psis)
     for base in (None, np.broadcast_to(WORLD_T_BASE, (60, 4, 4))):
         floor = tip_floor(ROBOT, ROBOT.forward(thetas, psis, base), base)
-        assert floor.errors.position.max() < 1e-9
-        assert floor.errors.tangent.max() < 1e-8
-        assert np.abs(floor.bends - bends).max() < 1e-8
-        np.testing.assert_allclose(floor.thetas, thetas, atol=1e-8)
+        assert floor.errors.position.max() < 1e-12  # measured: ~3e-16 m
+        assert floor.errors.tangent.max() < 1e-12
+        assert np.abs(floor.bends - bends).max() < 1e-10  # measured: ~6e-15 rad
+        np.testing.assert_allclose(floor.thetas, thetas, atol=1e-10)
+        np.testing.assert_allclose(floor.psis, psis, atol=1e-10)
     # on tips the model cannot reach the floor is not zero, and no worse than the true bends
     shifted = ROBOT.forward(thetas, psis).copy()
     shifted[:, 1, :3, 3] += [1e-3, 0.0, 0.0]
@@ -409,9 +411,9 @@ def test_truth_tips_round_trip(tmp_path: Path) -> None:
     assert loaded.truth_tips is not None and seq.truth_tips is not None
     assert np.abs(loaded.truth_tips - seq.truth_tips).max() < 1e-12
     assert loaded.n_frames == 20 and loaded.thetas is None
+    assert loaded.cameras == seq.cameras
     for cam in seq.cameras:
-        assert loaded.tracks[cam].equals(seq.tracks[cam]) or np.allclose(
-            loaded.tracks[cam].uv, seq.tracks[cam].uv, atol=1e-9)
+        assert loaded.tracks[cam].equals(seq.tracks[cam])
 
 
 def test_truth_tips_missing_row_is_refused(tmp_path: Path) -> None:
@@ -472,9 +474,11 @@ def test_calibrate_simulate_estimate_evaluate(tmp_path: Path, capsys: pytest.Cap
     assert "floor" in out and "tip errors" in out
     rows = [line.split() for line in out.splitlines() if line.strip()[:2] in ("1 ", "2 ")]
     assert len(rows) == 2
-    for row in rows:  # estimated tips are within centimetres, and no better than the floor
-        position, floor_mm = float(row[1]), float(row[2])
-        assert floor_mm <= position < 20.0
+    position, floor_mm = (np.array([float(row[c]) for row in rows]) for c in (1, 2))
+    assert position.max() < 10.0  # mm: the estimator follows the replayed motion
+    # the floor is, frame by frame, the least sum of squared position errors over the segment
+    # ends: no estimate of the same model does better on that sum (printed to 0.01 mm)
+    assert np.sum(position**2) >= np.sum(floor_mm**2) - 0.01
 
 
 def test_calibrate_backbone_poses_needs_robot(tmp_path: Path,
