@@ -57,6 +57,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     simp.add_argument("--smoothing", type=non_negative, default=None,
                       help="with --motion POSES.csv: width (s) of the local fit that removes "
                       "the motion capture's noise (default 0.05; 0 interpolates)")
+    simp.add_argument("--max-gap", type=positive, default=None,
+                      help="with --motion POSES.csv: frames are written only where the samples "
+                      "around them are at most this far apart (seconds, default 0.25); the "
+                      "gaps split the recording into stretches, and no track crosses a gap")
+    simp.add_argument("--stretch", type=at_least(1), default=None,
+                      help="with --motion POSES.csv: replay only this stretch (1 = the first; "
+                      "default: all, the tracks cut at each gap)")
     simp.add_argument("--spatial", action="store_true", help="also vary the bending planes psi")
     simp.add_argument("--moving-base", action="store_true",
                       help="move the base (rotation up to 5 deg, translation up to 0.1 m)")
@@ -120,8 +127,9 @@ def run(args: argparse.Namespace) -> str:
         from apcc_graph.cli.simulate_replay import run_replay
 
         return run_replay(args, robot, out, scene)
-    if args.smoothing is not None:
-        raise UserError("--smoothing applies to --motion POSES.csv only")
+    for name in ("smoothing", "max_gap", "stretch"):
+        if getattr(args, name) is not None:
+            raise UserError(f"--{name.replace('_', '-')} applies to --motion POSES.csv only")
     if args.frames is None:
         raise UserError("--frames is required (except with --motion POSES.csv)")
     args.fps = 30.0 if args.fps is None else args.fps
