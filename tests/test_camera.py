@@ -116,6 +116,16 @@ def test_rotation_within_tolerance_is_accepted_and_bottom_row_cleaned() -> None:
     np.testing.assert_array_equal(cleaned[:3], pose[:3])
 
 
+def test_bottom_row_tolerance_is_absolute() -> None:
+    """1e-5 off in the bottom row is outside the 1e-6 tolerance (numpy's allclose would add a
+    relative 1e-5 of the expected 1 and let it through; is_rigid never did)."""
+    pose = np.eye(4)
+    pose[3, 3] = 1.0 + 1e-5
+    with pytest.raises(ValueError, match="bottom row"):
+        validate_pose("pose", pose)
+    assert not is_rigid(pose)
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.tuples(*[st.floats(-math.pi, math.pi)] * 3), st.tuples(*[st.floats(-5.0, 5.0)] * 3),
        st.integers(0, 15), st.sampled_from([0.0, 1e-9, 1e-7, 1e-5, 0.1, 1.0, math.nan]))

@@ -40,7 +40,7 @@ def validate_pose(name: str, matrix: ArrayLike, tolerance: float = 1e-6) -> Floa
         raise ValueError(f"{name}: expected a 4x4 homogeneous transform, got shape {m.shape}")
     if not np.all(np.isfinite(m)):
         raise ValueError(f"{name}: expected finite values, got {m.tolist()}")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=tolerance):
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=tolerance):
         raise ValueError(f"{name}: bottom row must be [0, 0, 0, 1], got {m[3].tolist()}")
     rot = m[:3, :3]
     if (
