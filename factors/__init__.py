@@ -10,26 +10,28 @@ the Sampson error), never the estimators.
 
 Modules:
 
-- :mod:`factors.epipolar_residual`: the generalized epipolar residual of one tip camera between
-  a frame and one or several earlier frames, in joint space (the APCC chain inside the residual):
+- :mod:`apcc_graph.factors.epipolar_residual`: the generalized epipolar residual of one tip camera
+  between a frame and one or several earlier frames, in joint space (the APCC chain inside the
+  residual):
   Sampson errors whitened by the pixel noise, Jacobians in the angles and optionally in each
   segment's calibration (k, delta_max).
-- :mod:`factors.epipolar`: the epipolar factors built on it: a robust loss per correspondence,
-  the first-evaluation gate, QR-compressed residuals and first-estimate linear factors.
-- :mod:`factors.camera_chain`: tip-camera poses along the APCC chain and their derivatives, and
-  the chain that fixes one camera's poses.
-- :mod:`factors.track_points`: one camera's tracks and their observation model (whitened
+- :mod:`apcc_graph.factors.epipolar`: the epipolar factors built on it: a robust loss per
+  correspondence, the first-evaluation gate, QR-compressed residuals and first-estimate linear
+  factors.
+- :mod:`apcc_graph.factors.camera_chain`: tip-camera poses along the APCC chain and their
+  derivatives, and the chain that fixes one camera's poses.
+- :mod:`apcc_graph.factors.track_points`: one camera's tracks and their observation model (whitened
   reprojection errors).
-- :mod:`factors.triangulation`: each track's point for given camera poses (inverse-depth
+- :mod:`apcc_graph.factors.triangulation`: each track's point for given camera poses (inverse-depth
   Levenberg-Marquardt, robust variant).
-- :mod:`factors.reduced_system`: the projection model's Gauss-Newton system in the angles, each
-  track's point eliminated (Schur complement).
-- :mod:`factors.projection`: the projection factor over a chunk of tracks (Cholesky-compressed
-  reduced system), its keys, and chunking of tracks.
-- :mod:`factors.landmark`: landmarks (points kept as variables) and camera-pose variables tied
-  to the angles.
-- :mod:`factors.kinematic`: the APCC kinematic factor in pose space (base Pose3, angle, tip
-  Pose3), residual in the tangent space of Pose3.
-- :mod:`factors.priors`: absolute angle prior, random-walk motion prior (both gtsam C++
+- :mod:`apcc_graph.factors.reduced_system`: the projection model's Gauss-Newton system in the
+  angles, each track's point eliminated (Schur complement).
+- :mod:`apcc_graph.factors.projection`: the projection factor over a chunk of tracks
+  (Cholesky-compressed reduced system), its keys, and chunking of tracks.
+- :mod:`apcc_graph.factors.landmark`: landmarks (points kept as variables) and camera-pose
+  variables tied to the angles.
+- :mod:`apcc_graph.factors.kinematic`: the APCC kinematic factor in pose space (base Pose3, angle,
+  tip Pose3), residual in the tangent space of Pose3.
+- :mod:`apcc_graph.factors.priors`: absolute angle prior, random-walk motion prior (both gtsam C++
   factors), soft joint limits.
 """

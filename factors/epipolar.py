@@ -1,9 +1,9 @@
 """Generalized epipolar factors in joint space: the gtsam side of the epipolar residual.
 
-The residual and its Jacobians are :mod:`factors.epipolar_residual` (docs/estimation.md, "Two
-frames" and "The epipolar model, kept for comparison"). Joint space against a Pose3 formulation
-(:mod:`factors.kinematic`): one unknown per segment and frame instead of an angle plus a 6-dof
-pose per segment, and the APCC chain holds exactly inside the residual rather than as a soft
+The residual and its Jacobians are :mod:`apcc_graph.factors.epipolar_residual` (docs/estimation.md,
+"Two frames" and "The epipolar model, kept for comparison"). Joint space against a Pose3 formulation
+(:mod:`apcc_graph.factors.kinematic`): one unknown per segment and frame instead of an angle plus a
+6-dof pose per segment, and the APCC chain holds exactly inside the residual rather than as a soft
 constraint; the graph is much smaller and needs no pose initialisation.
 
 Robust loss per correspondence: gtsam's robust noise models reweight a whole factor by one
@@ -35,10 +35,10 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.factors.epipolar_residual import FrameResidual, epipolar_frame_residual, rescaled
 from apcc_graph.frontend.geometry import slope_gate
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.segment import Segment, calibrated
-from factors.epipolar_residual import FrameResidual, epipolar_frame_residual, rescaled
 
 ROBUST_LOSSES = ("huber", "cauchy", "none")
 _TINY = 1e-300
@@ -275,7 +275,7 @@ def epipolar_frame_factor(
         keys_b: keys of ``theta[0..i]`` at frame b.
         keys_a: per pair, the keys of ``theta[0..i]`` at ``a_p``.
         segments, tip_T_cam, world_T_base_b, world_T_base_a, f_a, f_b, sigma, psis: as in
-            :func:`~factors.epipolar_residual.epipolar_frame_residual`.
+            :func:`~apcc_graph.factors.epipolar_residual.epipolar_frame_residual`.
         loss: ``"huber"``, ``"cauchy"`` or ``"none"``, applied per correspondence.
         loss_scale: the m-estimator's threshold in whitened units (sigmas).
         calibration_keys: per segment ``(k key, delta_max key)``: calibration variables
@@ -322,7 +322,7 @@ def epipolar_factor(
     Args:
         keys_a, keys_b: keys of ``theta[0..i]`` at frames a and b.
         segments, tip_T_cam, world_T_base_a, world_T_base_b, f_a, f_b, sigma, psis: as in
-            :func:`~factors.epipolar_residual.epipolar_residual`.
+            :func:`~apcc_graph.factors.epipolar_residual.epipolar_residual`.
         loss: ``"huber"``, ``"cauchy"`` or ``"none"``, applied per correspondence.
         loss_scale: the m-estimator's threshold in whitened units (sigmas).
         calibration_keys: per segment ``(k key, delta_max key)``, or ``None``.

@@ -1,7 +1,8 @@
 """Landmarks: tracks that outlive a smoother's window keep their point as a variable.
 
-The projection factor (:mod:`factors.projection`) eliminates each track's point inside the
-factor. A fixed-lag smoother that does so must cut a track whose first frame leaves the window:
+The projection factor (:mod:`apcc_graph.factors.projection`) eliminates each track's point inside
+the factor. A fixed-lag smoother that does so must cut a track whose first frame leaves the
+window:
 the rest of the track gets a new point, and whatever the old observations said about the point
 is lost to the new frames. The cut raises the Cramer-Rao bound of the fixed lag
 (``docs/estimation.md``, "The bound of a fixed-lag smoother"), and the estimate drifts. A track
@@ -22,11 +23,11 @@ A camera-pose variable is tied to its frame's angles by :func:`camera_pose_facto
 
     E = world_T_cam^-1 . T_cam(theta),   r = Logmap(E)   (gtsam order: rotation, translation)
 
-where ``T_cam(theta)`` is the camera's pose along the APCC chain (:mod:`factors.camera_chain`),
-with a stiff noise (a constraint, in practice). Jacobians, under the right-hand perturbations
-``X . Exp(d)`` and ``theta + d``, with ``J_r^-1`` the inverse right Jacobian of SE(3)
-(``gtsam.Pose3.LogmapDerivative``) and ``xi_j = vee(T_cam^-1 dT_cam/dtheta_j)`` the body twist of
-angle j::
+where ``T_cam(theta)`` is the camera's pose along the APCC chain
+(:mod:`apcc_graph.factors.camera_chain`), with a stiff noise (a constraint, in practice).
+Jacobians, under the right-hand perturbations ``X . Exp(d)`` and ``theta + d``, with ``J_r^-1`` the
+inverse right Jacobian of SE(3) (``gtsam.Pose3.LogmapDerivative``) and ``xi_j = vee(T_cam^-1
+dT_cam/dtheta_j)`` the body twist of angle j::
 
     H_theta_j = J_r^-1(r) xi_j,     H_X = -J_r^-1(r) Ad(E^-1)
 """
@@ -37,9 +38,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.projection import frame_key
 from apcc_graph.model.arrays import FloatArray
-from factors.camera_chain import CameraChain
-from factors.projection import frame_key
 
 MAX_CAMERAS = 64
 """Camera-pose keys pack the camera into the symbol's index: at most this many cameras."""
@@ -95,7 +96,7 @@ def camera_pose_factor(frame: int, camera: int, chain: CameraChain, n_segments: 
 
     Args:
         frame, camera: which pose (:func:`camera_pose_key`) and angles
-            (:func:`~factors.projection.frame_key`).
+            (:func:`~apcc_graph.factors.projection.frame_key`).
         chain: the camera's chain (its base poses cover ``frame``).
         n_segments: the dimension of the frame's vector (S; 2 S for a spatial chain, whose
             camera depends on its segments' bending vectors).

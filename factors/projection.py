@@ -2,10 +2,10 @@
 
 Variables: one ``Vector(S)`` per frame, the angles of all S segments (radians); key
 :func:`frame_key`. The camera on segment ``c`` depends on the first ``c + 1`` of them
-(:mod:`factors.camera_chain`); the robot base poses are known inputs.
+(:mod:`apcc_graph.factors.camera_chain`); the robot base poses are known inputs.
 
 The factor's maths, the pixel reprojection error with each track's point eliminated by the
-Schur complement, is :mod:`factors.reduced_system` (docs/estimation.md, "Eliminating each
+Schur complement, is :mod:`apcc_graph.factors.reduced_system` (docs/estimation.md, "Eliminating each
 track's point"): for the current angles, a Gauss-Newton system ``H``, ``g`` and a cost.
 
 gtsam sees a factor over a chunk of tracks (:class:`ProjectionFactor`): its Jacobian is the
@@ -31,16 +31,16 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.segment import calibrated
-from factors.camera_chain import CameraChain
-from factors.reduced_system import (
+from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.reduced_system import (
     ReducedSystem,
     reduced_system,
     residual_norms,
     robust_residual_norms,
 )
-from factors.track_points import TrackObservations
+from apcc_graph.factors.track_points import TrackObservations
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.segment import calibrated
 
 
 def frame_key(frame: int) -> int:

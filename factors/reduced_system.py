@@ -1,12 +1,12 @@
 """The projection model's Gauss-Newton system in the angles, each track's point eliminated.
 
-Residual (:mod:`factors.track_points`; docs/estimation.md, "Eliminating each track's point"):
-``r_k = W_k (m(R^T (p_t - o)) - x_k)`` per observation, the pixel reprojection error in units of
-the pixel noise, with the camera pose ``[R | o]`` of the row's frame along the chain
-(:class:`factors.camera_chain.CameraChain`). Each track's point ``p_t`` is a nuisance: for the
-current angles it is re-triangulated (:mod:`factors.triangulation`) and eliminated by the Schur
-complement, so the cost is ``sum_k w_k |r_k|^2`` minimised over the points (variable projection),
-and its Gauss-Newton system in the angles is
+Residual (:mod:`apcc_graph.factors.track_points`; docs/estimation.md, "Eliminating each track's
+point"): ``r_k = W_k (m(R^T (p_t - o)) - x_k)`` per observation, the pixel reprojection error in
+units of the pixel noise, with the camera pose ``[R | o]`` of the row's frame along the chain
+(:class:`apcc_graph.factors.camera_chain.CameraChain`). Each track's point ``p_t`` is a nuisance:
+for the current angles it is re-triangulated (:mod:`apcc_graph.factors.triangulation`) and
+eliminated by the Schur complement, so the cost is ``sum_k w_k |r_k|^2`` minimised over the points
+(variable projection), and its Gauss-Newton system in the angles is
 
     H = sum_k Jt_k^T Jt_k - sum_t B_t C_t^-1 B_t^T,    g = sum_k Jt_k^T r_k - sum_t B_t C_t^-1 b_t
 
@@ -28,10 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.track_points import TrackObservations, project_rows, segment_sum
+from apcc_graph.factors.triangulation import robust_triangulate, triangulate_rows
 from apcc_graph.model.arrays import FloatArray
-from factors.camera_chain import CameraChain
-from factors.track_points import TrackObservations, project_rows, segment_sum
-from factors.triangulation import robust_triangulate, triangulate_rows
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ def residual_norms(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
 def robust_residual_norms(obs: TrackObservations, chain: CameraChain, thetas: FloatArray,
                           first: int, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Like :func:`residual_norms`, but each track's point is found robustly from scratch
-    (:func:`factors.triangulation.robust_triangulate`): the outlier decisions of a new
+    (:func:`apcc_graph.factors.triangulation.robust_triangulate`): the outlier decisions of a new
     estimate start here."""
     Rb, ob, _, _ = _row_poses(chain, thetas, first, obs.frames, False)
     points, norms = robust_triangulate(obs, np.moveaxis(Rb, -1, 0), ob.T, weights)

@@ -10,11 +10,11 @@ image point ``x_k`` (``pixel = K distort(x_k)``)::
 ``W_k = D_k / sigma_px`` whitens it: ``D_k`` is the 2x2 derivative of the pixel with respect to
 ``x`` at ``x_k`` (``diag(fx, fy)`` for a pinhole), so ``r_k`` is the pixel error in units of the
 pixel noise, to first order, and ``|r_k|^2`` is chi-square with 2 degrees of freedom for an
-inlier. Each track's point is found by :mod:`factors.triangulation`.
+inlier. Each track's point is found by :mod:`apcc_graph.factors.triangulation`.
 
-Layout: per-row arrays inside this module, :mod:`factors.triangulation` and
-:mod:`factors.reduced_system` keep the row index *last* (``R`` as ``(3, 3, N)``, points as
-``(3, N)``): numpy's einsum over small leading axes is then much faster than over trailing ones.
+Layout: per-row arrays inside this module, :mod:`apcc_graph.factors.triangulation` and
+:mod:`apcc_graph.factors.reduced_system` keep the row index *last* (``R`` as ``(3, 3, N)``, points
+as ``(3, N)``): numpy's einsum over small leading axes is then much faster than over trailing ones.
 The public functions take the usual row-first arrays.
 """
 

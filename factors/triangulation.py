@@ -1,7 +1,7 @@
 """Each track's 3-D point for given camera poses: the nuisance the projection factor eliminates.
 
 :func:`triangulate` solves weighted least squares of a track's whitened reprojection errors
-(:mod:`factors.track_points`; docs/estimation.md, "Eliminating each track's point") by
+(:mod:`apcc_graph.factors.track_points`; docs/estimation.md, "Eliminating each track's point") by
 Levenberg-Marquardt in inverse-depth coordinates anchored at the track's first row
 (``p = o_a + R_a (alpha, beta, 1) / rho``), which stays well conditioned for the small baselines
 of a tip camera; all tracks are solved at once (vectorised). :func:`robust_triangulate` adds
@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from apcc_graph.model.arrays import FloatArray, IntArray
-from factors.track_points import (
+from apcc_graph.factors.track_points import (
     MIN_DEPTH,
     TrackObservations,
     project_rows,
     rows_last,
     segment_sum,
 )
+from apcc_graph.model.arrays import FloatArray, IntArray
 
 MIN_INVERSE_DEPTH = 1e-3
 """1/metres: a point's inverse depth from its track's first camera stays above this (1 km); a

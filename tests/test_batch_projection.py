@@ -21,12 +21,12 @@ from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import CameraTerms
 from apcc_graph.estimation.robust import gnc_schedule
 from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.factors.track_points import cut_tracks
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence, Tracks
 from apcc_graph.simulation.simulator import Simulation, simulate
-from factors.track_points import cut_tracks
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 PRIOR = math.radians(0.1)  # GraphOptions' default theta0_sigma

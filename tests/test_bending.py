@@ -84,7 +84,7 @@ def test_derivatives_at_and_through_straight() -> None:
 def test_spatial_camera_poses_and_their_derivatives() -> None:
     """The chain in bending vectors: the poses of (theta, psi), and derivatives that match
     central differences column by column (u_j at 2 j, v_j at 2 j + 1)."""
-    from factors.camera_chain import CameraChain, camera_poses, spatial_camera_poses
+    from apcc_graph.factors.camera_chain import CameraChain, camera_poses, spatial_camera_poses
 
     segs = tuple(Segment(length=0.3, k=k, delta_max=math.radians(d), theta_max=math.radians(60))
                  for k, d in ((0.22, 6.0), (0.24, 3.0), (0.25, 0.0)))

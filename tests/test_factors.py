@@ -12,13 +12,13 @@ import pytest
 from helpers import random_pose
 
 from apcc_graph import Robot, Segment, TipCamera
+from apcc_graph.factors.epipolar import epipolar_factor, epipolar_frame_factor, robust_weights
+from apcc_graph.factors.epipolar_residual import epipolar_frame_residual, epipolar_residual
+from apcc_graph.factors.priors import joint_limit_factor, joint_limit_residual, motion_prior
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.kinematics import apcc_transform, apcc_transform_derivative
 from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
 from apcc_graph.simulation.simulator import simulate
-from factors.epipolar import epipolar_factor, epipolar_frame_factor, robust_weights
-from factors.epipolar_residual import epipolar_frame_residual, epipolar_residual
-from factors.priors import joint_limit_factor, joint_limit_residual, motion_prior
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 
@@ -276,7 +276,7 @@ def test_compressed_factor_gives_the_same_system_and_error(mounted_robot: Robot,
 
 def test_factor_memo_answers_repeats_and_notices_new_points(mounted_robot: Robot,
                                                             monkeypatch) -> None:
-    import factors.epipolar as module
+    import apcc_graph.factors.epipolar as module
 
     seq, b, gaps, args = _frame_setup(mounted_robot, 1, 41)
     keys_b, keys_a = [100, 101], [[10 * g, 10 * g + 1] for g in gaps]

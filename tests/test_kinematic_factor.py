@@ -13,13 +13,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from apcc_graph import Segment
-from apcc_graph.model.kinematics import apcc_body_twists, apcc_transform
-from factors.kinematic import (
+from apcc_graph.factors.kinematic import (
     _transform_and_twist,
     kinematic_factor,
     kinematic_noise,
     kinematic_residual,
 )
+from apcc_graph.model.kinematics import apcc_body_twists, apcc_transform
 
 X = gtsam.symbol_shorthand.X  # poses
 A = gtsam.symbol_shorthand.A  # angles

@@ -13,15 +13,15 @@ from hypothesis import strategies as st
 
 from apcc_graph import Segment
 from apcc_graph.estimation.live_tracks import LiveTracks
-from factors.camera_chain import CameraChain
-from factors.landmark import (
+from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.landmark import (
     camera_pose_factor,
     camera_pose_key,
     camera_pose_residual,
     landmark_key,
     observation_factors,
 )
-from factors.projection import frame_key
+from apcc_graph.factors.projection import frame_key
 
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
             Segment(0.3, k=0.3, delta_max=-0.05, theta_max=1.0),

@@ -14,16 +14,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.simulation.simulator import simulate
-from factors.camera_chain import CameraChain, camera_poses
-from factors.projection import (
+from apcc_graph.factors.camera_chain import CameraChain, camera_poses
+from apcc_graph.factors.projection import (
     ProjectionFactor,
     build_observations,
     calibrated,
     calibration_key,
     frame_key,
 )
-from factors.reduced_system import reduced_system
+from apcc_graph.factors.reduced_system import reduced_system
+from apcc_graph.simulation.simulator import simulate
 
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
             Segment(0.3, k=0.3, delta_max=-0.05, theta_max=1.0),

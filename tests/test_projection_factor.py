@@ -15,19 +15,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.io.robot_file import load_robot
-from apcc_graph.simulation.simulator import simulate
-from factors.camera_chain import CameraChain, camera_poses
-from factors.projection import (
+from apcc_graph.factors.camera_chain import CameraChain, camera_poses
+from apcc_graph.factors.projection import (
     ProjectionFactor,
     build_observations,
     chunk_tracks,
     compress,
     frame_key,
 )
-from factors.reduced_system import reduced_system
-from factors.track_points import MIN_DEPTH, TrackObservations
-from factors.triangulation import triangulate
+from apcc_graph.factors.reduced_system import reduced_system
+from apcc_graph.factors.track_points import MIN_DEPTH, TrackObservations
+from apcc_graph.factors.triangulation import triangulate
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.simulation.simulator import simulate
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),

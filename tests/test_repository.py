@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import importlib
 import re
+import shutil
+import subprocess
+import sys
+import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,7 +81,7 @@ def _resolves(dotted: str) -> bool:
 
 
 def test_module_paths_named_in_the_documents_exist() -> None:
-    """Every dotted name (``apcc_graph.x.y``, ``factors.x``) and source path
+    """Every dotted name (``apcc_graph.x.y``, ``apcc_graph.factors.x``) and source path
     (``apcc_graph/x.py``) the README and docs/ name resolves: a moved module breaks this."""
     missing = []
     for doc in _documents():
@@ -127,3 +131,31 @@ def test_the_refusal_counter_counts_raises_blocks_exits_and_parameters(tmp_path:
     (tmp_path / "test_b.py").write_text("def test_nothing():\n    assert True\n")
     counts = count(tmp_path)
     assert (counts["refused"], counts["warned"], counts["files"]) == (4, 1, 1)
+
+
+def test_the_wheel_installs_the_factors_inside_the_package(tmp_path: Path) -> None:
+    """``factors/`` stays at the top of the repository and installs as ``apcc_graph.factors``
+    (through the link ``apcc_graph/factors``): no top-level ``factors`` module in the wheel, which
+    would collide with an unrelated package of that name."""
+    src = tmp_path / "src"
+    ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
+    shutil.copytree(ROOT / "apcc_graph", src / "apcc_graph", symlinks=True, ignore=ignore)
+    shutil.copytree(ROOT / "factors", src / "factors", ignore=ignore)
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, src / name)
+    assert (src / "apcc_graph" / "factors").is_symlink()
+    done = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
+                           str(tmp_path / "dist"), str(src)],
+                          capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (wheel,) = (tmp_path / "dist").glob("apcc_graph-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    modules = {Path(n).stem for n in names if n.startswith("apcc_graph/factors/")}
+    assert {"__init__", "projection", "camera_chain", "kinematic"} <= modules, names
+    assert not [n for n in names if n.split("/")[0] == "factors"]
+    # and the code imports it by that name only
+    stray = [str(p.relative_to(ROOT)) for p in [*ROOT.glob("apcc_graph/**/*.py"),
+                                                *ROOT.glob("factors/*.py"),
+                                                *ROOT.glob("tests/*.py")]
+             if re.search(r"^\s*(from|import) factors\b", p.read_text(), re.M)]
+    assert stray == []

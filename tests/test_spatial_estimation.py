@@ -25,10 +25,10 @@ from apcc_graph.estimation.spatial_bends import (
     start_bends,
 )
 from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.factors.projection import ProjectionFactor, frame_key
+from apcc_graph.factors.reduced_system import reduced_system
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.simulation.simulator import simulate
-from factors.projection import ProjectionFactor, frame_key
-from factors.reduced_system import reduced_system
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
 

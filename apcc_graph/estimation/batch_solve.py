@@ -31,11 +31,11 @@ from apcc_graph.estimation.graph import (
 )
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_start
+from apcc_graph.factors.projection import calibrated, calibration_key
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence
-from factors.projection import calibrated, calibration_key
 
 
 @dataclass(frozen=True)

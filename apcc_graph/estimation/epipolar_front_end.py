@@ -4,7 +4,8 @@ Camera by camera from the base, the new frame is paired with every earlier frame
 back (``GraphOptions.gaps``) and with every keyframe, still in the window, with which the camera
 shares at least ``min_shared`` tracks and whose camera position lies at least ``min_baseline``
 away (no parallax otherwise). One generalized epipolar factor over those pairs
-(:class:`factors.epipolar.EpipolarFrameFactor`) gates the correspondences at the prediction.
+(:class:`apcc_graph.factors.epipolar.EpipolarFrameFactor`) gates the correspondences at the
+prediction.
 
 The front end's check: the correspondences with the latest earlier frame that shares tracks
 with this one (the previous frame, or the last one before a blackout) must fall inside the gate
@@ -28,6 +29,7 @@ from apcc_graph.estimation.online_calibration import SYMBOL_KEYS, OnlineCalibrat
 from apcc_graph.estimation.options import GraphOptions, loss_scale, reuse_factor
 from apcc_graph.estimation.smoother_options import EpipolarSmootherOptions
 from apcc_graph.estimation.window import Window, observed_camera
+from apcc_graph.factors.epipolar import EpipolarFrameFactor
 from apcc_graph.frontend.ransac import one_point_ransac
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
@@ -35,7 +37,6 @@ from apcc_graph.model.robot import Robot
 from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import FrameObservations
-from factors.epipolar import EpipolarFrameFactor
 
 CHECK_BASELINE = 1e-4
 """Metres: below this the front end's check has no parallax to judge the prediction by."""

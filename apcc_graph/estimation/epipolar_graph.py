@@ -11,8 +11,8 @@ Variables: ``theta[f, i]`` (Vector1) for every frame and segment, key ``f * S + 
 - a random-walk motion prior between consecutive frames of each segment (``motion_sigma``
   rad/sqrt(s); ``None`` to leave it out);
 - soft joint limits;
-- generalized epipolar factors (:mod:`factors.epipolar`) for every camera between each frame and
-  several earlier frames, ``gaps`` apart, when they share at least ``min_shared`` tracks.
+- generalized epipolar factors (:mod:`apcc_graph.factors.epipolar`) for every camera between each
+  frame and several earlier frames, ``gaps`` apart, when they share at least ``min_shared`` tracks.
 
 Correspondences whose Sampson error at the current estimate exceeds ``gate_px`` are left out
 (gross outliers); the rest enter with a robust loss per correspondence. The solve runs in rounds:
@@ -29,10 +29,10 @@ import gtsam
 import numpy as np
 
 from apcc_graph.estimation.options import GraphOptions, loss_scale, reuse_factor
+from apcc_graph.factors.epipolar import epipolar_frame_factor
+from apcc_graph.factors.priors import angle_prior, joint_limit_factor, motion_prior
 from apcc_graph.frontend.geometry import SegmentTwoView, epipolar_errors, slope_gate
 from apcc_graph.model.sequence import Sequence
-from factors.epipolar import epipolar_frame_factor
-from factors.priors import angle_prior, joint_limit_factor, motion_prior
 
 
 def angle_key(frame: int, segment: int, n_segments: int) -> int:

@@ -1,8 +1,8 @@
 """Factor-graph building shared by the batch optimiser and the fixed-lag smoother.
 
 Variables: one ``Vector(S)`` per frame, the angles of all segments (radians), key
-:func:`factors.projection.frame_key`; for a spatial robot one ``Vector(2 S)``, the bending
-vectors ``(u_0, v_0, u_1, v_1, ...)`` (:mod:`apcc_graph.model.bending`). Factors
+:func:`apcc_graph.factors.projection.frame_key`; for a spatial robot one ``Vector(2 S)``, the
+bending vectors ``(u_0, v_0, u_1, v_1, ...)`` (:mod:`apcc_graph.model.bending`). Factors
 (``docs/estimation.md``):
 
 - the start prior on the first frame (``theta0``, ``GraphOptions.theta0_sigma`` per component);
@@ -23,11 +23,7 @@ from numpy.typing import NDArray
 
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_tls_weights
-from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.robot import Robot
-from apcc_graph.model.segment import Segment
-from apcc_graph.model.sequence import Sequence as RobotSequence
-from factors.projection import (
+from apcc_graph.factors.projection import (
     CameraChain,
     ProjectionFactor,
     TrackObservations,
@@ -37,7 +33,11 @@ from factors.projection import (
     chunk_tracks,
     frame_key,
 )
-from factors.track_points import cut_tracks
+from apcc_graph.factors.track_points import cut_tracks
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.segment import Segment
+from apcc_graph.model.sequence import Sequence as RobotSequence
 
 __all__ = ["CameraTerms", "bend_limit_factor", "calibration_factors", "calibration_from",
            "camera_observations", "frame_key", "prior_factors", "thetas_from", "values_from"]
@@ -49,8 +49,8 @@ def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
     """Camera ``cam``'s observations as tracks (undistorted, whitened by ``noise_px``).
 
     Tracks longer than ``max_track_frames`` are cut into pieces with points of their own
-    (:func:`factors.track_points.cut_tracks`); pieces seen in fewer than ``min_rows`` frames
-    are left out; ``None`` when nothing is left. ``frames`` restricts the rows to a range of
+    (:func:`apcc_graph.factors.track_points.cut_tracks`); pieces seen in fewer than ``min_rows``
+    frames are left out; ``None`` when nothing is left. ``frames`` restricts the rows to a range of
     frames.
     """
     camera = sequence.robot.cameras[cam]
@@ -89,9 +89,9 @@ class CameraTerms:
         obs: the camera's tracks.
         chain: the camera's chain (base poses over the frames the observations index).
         n_segments: the dimension of a frame's vector (S, or 2 S for a spatial robot).
-        frames_per_chunk: see :func:`factors.projection.chunk_tracks`.
+        frames_per_chunk: see :func:`apcc_graph.factors.projection.chunk_tracks`.
         calibrate: the factors also depend on the segments' ``(k, delta_max)`` variables
-            (:func:`factors.projection.calibration_key`).
+            (:func:`apcc_graph.factors.projection.calibration_key`).
     """
 
     def __init__(self, obs: TrackObservations, chain: CameraChain, n_segments: int,
@@ -227,8 +227,8 @@ def thetas_from(values: gtsam.Values, frames: Iterable[int]) -> FloatArray:
 def calibration_factors(robot: Robot, sigmas: tuple[float, float]
                         ) -> list[gtsam.NonlinearFactor]:
     """Self-calibration priors: each segment's ``(k, delta_max)`` variable
-    (:func:`~factors.projection.calibration_key`) around the robot's values, with standard
-    deviations ``sigmas = (k sigma, delta_max sigma in radians)``."""
+    (:func:`~apcc_graph.factors.projection.calibration_key`) around the robot's values, with
+    standard deviations ``sigmas = (k sigma, delta_max sigma in radians)``."""
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
     return [gtsam.PriorFactorVector(calibration_key(j), np.array([s.k, s.delta_max]), noise)
             for j, s in enumerate(robot.segments)]

@@ -11,7 +11,7 @@ each live track's point (triangulated from its earlier observations) is held fix
 frame's S angles are fitted to the new observations of those tracks, all cameras together, by
 robust Gauss-Newton (Cauchy weights, then the truncated quadratic): a perspective-n-point
 problem in joint space (:func:`refine`). Observations are whitened reprojection errors
-(:mod:`factors.track_points`); Jacobians come from the scalar APCC transforms
+(:mod:`apcc_graph.factors.track_points`); Jacobians come from the scalar APCC transforms
 (:func:`apcc_graph.model.scalar_kinematics.apcc_transform_scalar`), one frame at a time. For a
 spatial robot (``spatial=True``) the unknowns are the bending vectors
 (:mod:`apcc_graph.model.bending`), and the 2-point front end replaces the 1-point one

@@ -9,12 +9,12 @@ such tracks instead (at most ``max_per_camera`` per camera at a time):
 - :meth:`Landmarks.promote`: the piece's point, triangulated robustly (which also takes the
   outlier decisions of its observations so far), becomes a ``Point3`` variable with a weak
   prior, and its inlier observations become gtsam's C++ projection factors
-  (:mod:`factors.landmark`);
+  (:mod:`apcc_graph.factors.landmark`);
 - :meth:`Landmarks.observe`: a new frame's observations of landmarks, judged by the initial
   guess, join the same way, and the landmarks seen keep a fresh timestamp, so the smoother keeps
   them;
 - the observations attach to a ``Pose3`` per frame and camera, created when first needed and
-  tied to the frame's angles (:func:`factors.landmark.camera_pose_factor`);
+  tied to the frame's angles (:func:`apcc_graph.factors.landmark.camera_pose_factor`);
 - :meth:`Landmarks.forget`: a landmark whose track ended (or went unseen for most of a lag) gets
   no more observations, and the smoother marginalises it once it is older than the lag.
 
@@ -32,16 +32,16 @@ from numpy.typing import NDArray
 
 from apcc_graph.estimation.initial_guess import FrameRows
 from apcc_graph.estimation.robust import gnc_tls_weights
-from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.robot import Robot
-from factors.landmark import (
+from apcc_graph.factors.landmark import (
     camera_pose_factor,
     camera_pose_key,
     landmark_key,
     observation_factors,
 )
-from factors.projection import CameraChain, robust_residual_norms
-from factors.track_points import TrackObservations
+from apcc_graph.factors.projection import CameraChain, robust_residual_norms
+from apcc_graph.factors.track_points import TrackObservations
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.robot import Robot
 
 ChainLookup = Callable[[int, int, int], CameraChain]
 """``(camera, first, last) -> the camera's chain over frames first .. last``."""

@@ -1,8 +1,8 @@
 """The tracks a streaming estimator is still watching, until each one is committed once.
 
 Every observation enters the smoother's graph exactly once, inside the projection factor of its
-track (:mod:`factors.projection`). A track is therefore held here while it is being observed
-and committed, all its observations at once, when one of these happens:
+track (:mod:`apcc_graph.factors.projection`). A track is therefore held here while it is being
+observed and committed, all its observations at once, when one of these happens:
 
 - it ends: the camera no longer sees it in the new frame (a frame in which the camera sees
   nothing at all ends no track);
@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray, IntArray
-from factors.track_points import TrackObservations
 
 
 @dataclass

@@ -4,8 +4,8 @@ With ``calibrate=True`` (:class:`~apcc_graph.estimation.smoother_options.Epipola
 the smoother adds, at its first frame (and again after a restart), one ``Vector1`` variable per
 segment for k and one for delta_max (radians), each with a prior around the robot's value. They
 are never marginalised: every update renews their timestamps. The epipolar factors then take
-them as extra keys (:class:`factors.epipolar.EpipolarFrameFactor`, ``calibration_keys``), and
-the front end works with the segments at the current calibration.
+them as extra keys (:class:`apcc_graph.factors.epipolar.EpipolarFrameFactor`,
+``calibration_keys``), and the front end works with the segments at the current calibration.
 
 Angle keys are ``frame * S + segment`` (:func:`~apcc_graph.estimation.epipolar_graph.angle_key`),
 far below any gtsam ``Symbol`` key, which the calibration keys are.
@@ -19,11 +19,11 @@ import gtsam
 import numpy as np
 
 from apcc_graph.estimation.window import Window
+from apcc_graph.factors.epipolar import calibrated_segments
+from apcc_graph.factors.priors import angle_prior
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
-from factors.epipolar import calibrated_segments
-from factors.priors import angle_prior
 
 SYMBOL_KEYS = gtsam.symbol("a", 0)
 """Keys from here up are gtsam Symbols (calibration); below, angle keys."""

@@ -25,7 +25,7 @@ class GraphOptions:
             frames the cameras do not constrain.
         limit_sigma: softness of the joint limits (radians).
 
-    Projection model (:mod:`factors.projection`):
+    Projection model (:mod:`apcc_graph.factors.projection`):
         inlier_sigmas: an observation whose whitened reprojection error (pixel-noise units,
             2 degrees of freedom) at its track's point exceeds this is an outlier (truncated
             least squares); 3.5 keeps 99.8% of true observations.
@@ -37,7 +37,7 @@ class GraphOptions:
             point of its own, so that no factor spans more frames than this (its dense block
             grows with the square of its span); ``None`` keeps whole tracks.
 
-    Epipolar model (:mod:`factors.epipolar`):
+    Epipolar model (:mod:`apcc_graph.factors.epipolar`):
         gaps: frame gaps between which epipolar factors are built.
         min_shared: fewest shared (and gated) tracks for a factor.
         gate_px: correspondences with a larger Sampson error at the current estimate are left

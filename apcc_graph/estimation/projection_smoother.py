@@ -8,9 +8,9 @@ smoother`` measures it against the Cramer-Rao bounds). The epipolar smoother
 This module drives the window (:mod:`apcc_graph.estimation.window`); the pieces it drives:
 the graph (:mod:`apcc_graph.estimation.graph`: one ``Vector(S)`` of angles per frame, the start
 prior, a weak motion prior, soft joint limits, projection factors in which every observation
-counts once and each track's point is eliminated, :mod:`factors.projection`); the track pieces,
-committed into one factor when their track ends, when their first frame is about to leave the
-window, or at ``GraphOptions.max_track_frames``, with the outlier decisions
+counts once and each track's point is eliminated, :mod:`apcc_graph.factors.projection`); the track
+pieces, committed into one factor when their track ends, when their first frame is about to leave
+the window, or at ``GraphOptions.max_track_frames``, with the outlier decisions
 (:mod:`apcc_graph.estimation.projection_tracks`, :mod:`apcc_graph.estimation.live_tracks`);
 the new frame's initial angles (:mod:`apcc_graph.estimation.initial_guess`); the landmarks,
 tracks that outlive the window and keep their point as a variable

@@ -30,13 +30,13 @@ from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_tls_weights
 from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions
 from apcc_graph.estimation.window import Window, observed_camera
+from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.projection import ProjectionFactor
+from apcc_graph.factors.reduced_system import robust_residual_norms
+from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
-from factors.camera_chain import CameraChain
-from factors.projection import ProjectionFactor
-from factors.reduced_system import robust_residual_norms
-from factors.track_points import TrackObservations
 
 Rows = Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]]
 """camera -> (track ids, normalised points, whitening) of a new frame."""

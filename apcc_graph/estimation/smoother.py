@@ -56,10 +56,10 @@ from apcc_graph.estimation.window import (
     start_angles,
     warn_restart,
 )
+from apcc_graph.factors.priors import angle_prior, joint_limit_factor, motion_prior
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
-from factors.priors import angle_prior, joint_limit_factor, motion_prior
 
 __all__ = ["FixedLagSmoother"]
 

@@ -200,12 +200,13 @@ class ProjectionSmootherOptions(SmootherOptions):
             angle started by the 1-point front end from the previous frame
             (:func:`~apcc_graph.estimation.initial_guess.one_point_guess`).
         point_iterations: triangulation steps per linearisation of a projection factor, from
-            its points of the previous one (:func:`factors.reduced_system.reduced_system`).
+            its points of the previous one
+            (:func:`apcc_graph.factors.reduced_system.reduced_system`).
         commit_every: pieces whose tracks ended are committed together every this many frames
             (they stay in the live factor until then): fewer committed Python factors.
         landmarks: a track that outlives the window becomes a landmark, its point a variable
-            (:mod:`factors.landmark`), instead of being cut into pieces with points of their
-            own (which loses what the old observations said about the point).
+            (:mod:`apcc_graph.factors.landmark`), instead of being cut into pieces with points of
+            their own (which loses what the old observations said about the point).
         landmark_sigma: a landmark's weak prior at its first triangulation (metres), so that
             one seen without parallax stays determined.
         pose_sigma: stiffness of the tie between a frame's angles and its camera-pose

@@ -4,10 +4,10 @@ The projection batch (:mod:`apcc_graph.estimation.batch`) with one ``Vector(2 S)
 the bending vectors ``(u_0, v_0, u_1, v_1, ...)`` (:mod:`apcc_graph.estimation.spatial_bends`),
 smooth through straight: the start prior and the random-walk motion prior act on them, the soft
 joint limits on their lengths, and every camera's projection factors on its segments' bending
-vectors (:class:`factors.camera_chain.CameraChain` with ``spatial=True``). Outliers by graduated
-non-convexity as in the planar batch; marginal ``2 x 2`` covariances of every bending vector at
-the solution give ``sigma_theta`` and ``sigma_psi``. The starting values are the chained 2-point
-estimate (:mod:`apcc_graph.estimation.spatial_chain`).
+vectors (:class:`apcc_graph.factors.camera_chain.CameraChain` with ``spatial=True``). Outliers by
+graduated non-convexity as in the planar batch; marginal ``2 x 2`` covariances of every bending
+vector at the solution give ``sigma_theta`` and ``sigma_psi``. The starting values are the chained
+2-point estimate (:mod:`apcc_graph.estimation.spatial_chain`).
 """
 
 from __future__ import annotations

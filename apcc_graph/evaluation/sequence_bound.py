@@ -8,8 +8,9 @@ what bundle adjustment sees when every track has its own unknown point), plus an
 on the first frame. Its inverse bounds the covariance of any unbiased estimator; the per-angle
 bound is the square root of its diagonal. Outliers carry no information and are left out; each
 track is its own point, even when the simulator re-used a scene point for a later track (no
-re-identification). The maths is that of the projection factor (:mod:`factors.projection`),
-evaluated at the truth with noise-free pixels; see ``docs/estimation.md``.
+re-identification). The maths is that of the projection factor
+(:mod:`apcc_graph.factors.projection`), evaluated at the truth with noise-free pixels; see
+``docs/estimation.md``.
 
 The information matrix is dense, ``(F S)^2``: 26 MB for 600 frames of three segments, 650 MB
 for 3000; use :func:`sequence_bound` on a window of a longer sequence (the bound is flat along
@@ -25,13 +26,13 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
+from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.projection import build_observations, chunk_tracks
+from apcc_graph.factors.reduced_system import reduced_system
+from apcc_graph.factors.track_points import cut_tracks
 from apcc_graph.model.arrays import FloatArray, rms, window_rms
 from apcc_graph.model.bending import bending_vector
 from apcc_graph.simulation.simulator import Simulation
-from factors.camera_chain import CameraChain
-from factors.projection import build_observations, chunk_tracks
-from factors.reduced_system import reduced_system
-from factors.track_points import cut_tracks
 
 
 @dataclass(frozen=True)
