@@ -5,12 +5,12 @@ calibration, a 1-point generalized-epipolar front end and a GTSAM factor-graph b
 
 The package is a stack of layers, each a subpackage that imports only the ones before it:
 ``model`` (the robot's maths), ``io`` (file formats), ``frontend`` (two-view geometry, the
-1-point solver, tracking), ``calibration``, ``simulation``, then the top-level ``factors``
-package (GTSAM factors), ``estimation`` (chain, batch, smoothers), ``evaluation`` (accuracy and
-the Cramér-Rao bounds), ``bench``, ``plots`` and ``cli``. ``tests/test_layers.py`` checks it.
+1-point solver, tracking), ``calibration``, ``simulation``, then ``factors`` (GTSAM factors),
+``estimation`` (chain, batch, smoother), ``evaluation`` (accuracy and the Cramér-Rao bounds),
+``bench``, ``plots`` and ``cli``. ``tests/test_layers.py`` checks it.
 
 Public names are re-exported lazily (module-level ``__getattr__``) so that importing a submodule,
-or the ``factors`` package, never pulls in the estimators.
+or ``apcc_graph.factors``, never pulls in the estimators.
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ _EXPORTS = {
     "find_start": "apcc_graph.estimation.start_search",
     "UnknownStartError": "apcc_graph.estimation.start_search",
     "FixedLagSmoother": "apcc_graph.estimation.smoother",
-    "ProjectionFixedLagSmoother": "apcc_graph.estimation.projection_smoother",
     "GraphOptions": "apcc_graph.estimation.options",
     "FrameObservations": "apcc_graph.model.sequence",
     "Sequence": "apcc_graph.model.sequence",

@@ -5,19 +5,11 @@ Conventions: the state is the bending angle of each segment at each frame, a Vec
 ``x + dx`` is plain addition. The maths (residuals with analytic Jacobians) is pure numpy, apart
 from the thin code that hands it to gtsam; docs/estimation.md derives it.
 
-May import: :mod:`apcc_graph.model` and :mod:`apcc_graph.frontend` (the two-view geometry and
-the Sampson error), never the estimators.
+May import: :mod:`apcc_graph.model` and :mod:`apcc_graph.frontend`, never the estimators. The
+folder sits at the top of the repository and installs as ``apcc_graph.factors``.
 
 Modules:
 
-- :mod:`apcc_graph.factors.epipolar_residual`: the generalized epipolar residual of one tip camera
-  between a frame and one or several earlier frames, in joint space (the APCC chain inside the
-  residual):
-  Sampson errors whitened by the pixel noise, Jacobians in the angles and optionally in each
-  segment's calibration (k, delta_max).
-- :mod:`apcc_graph.factors.epipolar`: the epipolar factors built on it: a robust loss per
-  correspondence, the first-evaluation gate, QR-compressed residuals and first-estimate linear
-  factors.
 - :mod:`apcc_graph.factors.camera_chain`: tip-camera poses along the APCC chain and their
   derivatives, and the chain that fixes one camera's poses.
 - :mod:`apcc_graph.factors.track_points`: one camera's tracks and their observation model (whitened
@@ -32,6 +24,4 @@ Modules:
   variables tied to the angles.
 - :mod:`apcc_graph.factors.kinematic`: the APCC kinematic factor in pose space (base Pose3, angle,
   tip Pose3), residual in the tangent space of Pose3.
-- :mod:`apcc_graph.factors.priors`: absolute angle prior, random-walk motion prior (both gtsam C++
-  factors), soft joint limits.
 """

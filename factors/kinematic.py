@@ -28,9 +28,9 @@ inverse right Jacobian of SE(3) (``gtsam.Pose3.LogmapDerivative``,
     H_theta =  J_r^-1(r) . xi            since  E(theta + d) = E Exp(d xi)
     H_tip   = -J_r^-1(r) . Ad(E^-1)      since  Exp(-d) E = E Exp(-Ad(E^-1) d)
 
-Pose space versus joint space. :mod:`apcc_graph.factors.epipolar` works in joint space: the only
-variables of a frame are the bending angles (one per segment), and the tip poses are products of
-segment transforms inside the residual, so the kinematics hold exactly by construction. This factor
+Pose space versus joint space. :mod:`apcc_graph.factors.projection` works in joint space: the
+only variables of a frame are the bending angles (one per segment), and the camera poses are
+products of segment transforms inside the residual, so the kinematics hold exactly. This factor
 instead gives every segment's tip its own 6-dof pose variable, one angle plus one pose per
 segment and frame (seven unknowns per segment instead of one), and ties them with a soft
 constraint whose stiffness is the noise model. That costs variables and one more Python factor

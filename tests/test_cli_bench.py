@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
+
 from apcc_graph.cli import main
 
 
@@ -143,3 +145,31 @@ def test_bench_spatial_small_run(capsys) -> None:
     assert re.search(r"smoother: every seed and segment within 3x of the bound: (yes|NO)", text)
     assert main(["bench", "spatial", "--methods", "kalman"]) == 1
     assert main(["bench", "spatial", "--outliers", "1.5"]) == 1
+
+
+def test_young_share_counts_each_tracks_second_and_third_observation() -> None:
+    from apcc_graph import Robot, Segment, TipCamera
+    from apcc_graph.bench.young_tracks import young_share
+    from apcc_graph.model.sequence import Sequence, Tracks
+
+    camera = TipCamera(500.0, 500.0, 320.0, 240.0, 640, 480)
+    robot = Robot([Segment(0.3)], [camera])
+    # Track 7 seen in frames 0-4 (rows 2, 3 young), track 8 in frames 3-4 (row 2 young),
+    # track 9 in frame 4 only: 3 young of 8 observations.
+    frames = [0, 1, 2, 3, 3, 4, 4, 4]
+    ids = [7, 7, 7, 7, 8, 7, 8, 9]
+    tracks = Tracks(frames, ids, np.full((8, 2), 100.0))
+    seq = Sequence(robot, np.arange(5) / 30.0, {0: tracks})
+    assert young_share(seq) == 3 / 8
+
+
+def test_bench_young_tracks_small_run(capsys) -> None:
+    assert main(["bench", "young-tracks", "--frames", "30", "--seeds", "1"]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert "1 seeds x 30 frames" in out and "of the observations are" in out
+    rows = [line for line in lines if line.strip().startswith(("4 |", "2 |"))]
+    assert len(rows) == 2, out
+    # The first row is the reference: its ratios are exactly 1.
+    assert "(x1.00 / 1.00 / 1.00)" in rows[0]
+    assert main(["bench", "young-tracks", "--outliers", "1.5"]) == 1

@@ -78,7 +78,7 @@ def test_track_runs_on_rendered_images(tmp_path: Path, capsys) -> None:
     (["estimate", str(SAMPLE), "--method", "chain", "--calibrate", "--out", "{tmp}/e"],
      "--calibrate"),
     (["estimate", str(SAMPLE), "--method", "smoother", "--calibrate", "--out", "{tmp}/e"],
-     "--vision epipolar"),
+     "--method batch"),
     (["plot"], "required"),
 ])
 def test_user_mistakes_end_in_one_line_and_exit_1(argv: list[str], expected: str,

@@ -19,6 +19,7 @@ from apcc_graph.model.kinematics import (
     pcc_transform,
     sinc,
 )
+from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
 from apcc_graph.model.segment import Segment
 
 STRAIGHT = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0.5], [0, 0, 0, 1.0]])
@@ -251,3 +252,12 @@ def test_twist_and_matrix_derivative_agree() -> None:
             hat[:3, :3] = [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
             hat[:3, 3] = v
             np.testing.assert_allclose(T[i] @ hat, deriv[i], atol=1e-14)
+
+
+def test_scalar_kinematics_match_the_vectorised_functions() -> None:
+    """The scalar path (one angle at a time, no array overhead) equals the vectorised one."""
+    seg = Segment(0.4, k=0.3, delta_max=-0.2, theta_max=1.2)
+    for theta, psi in [(0.0, 0.0), (0.7, 0.3), (-1.1, -2.0), (1e-9, 1.0)]:
+        T, dT = apcc_transform_scalar(theta, seg, psi)
+        np.testing.assert_allclose(T, apcc_transform(theta, seg, psi), atol=1e-15)
+        np.testing.assert_allclose(dT, apcc_transform_derivative(theta, seg, psi)[0], atol=1e-15)

@@ -1,4 +1,4 @@
-"""The smoothers' options records: validation, and how the constructors build them."""
+"""The smoother's options record: validation, and how the constructor builds it."""
 
 from __future__ import annotations
 
@@ -9,13 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import (
-    EpipolarSmootherOptions,
-    ProjectionSmootherOptions,
-    SmootherOptions,
-)
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.robot import Robot
 
@@ -27,63 +22,51 @@ def robot() -> Robot:
     return load_robot(ROBOT)
 
 
-def test_defaults_and_shared_fields() -> None:
-    epipolar, projection = EpipolarSmootherOptions(), ProjectionSmootherOptions()
-    assert isinstance(epipolar, SmootherOptions) and isinstance(projection, SmootherOptions)
-    assert epipolar.lag == projection.lag == 1.0
-    assert epipolar.relinearize_threshold == 1e-3 and projection.relinearize_threshold == 3e-4
-    assert epipolar.loose_sigma == projection.loose_sigma == math.radians(30.0)
+def test_defaults() -> None:
+    options = SmootherOptions()
+    assert options.lag == 1.0
+    assert options.relinearize_threshold == 3e-4
+    assert options.loose_sigma == math.radians(30.0)
+    assert options.min_live_rows == 4 and options.landmarks
     with pytest.raises(FrozenInstanceError):
-        epipolar.lag = 2.0  # type: ignore[misc]
+        options.lag = 2.0  # type: ignore[misc]
 
 
-@pytest.mark.parametrize(("kind", "field", "value"), [
-    (EpipolarSmootherOptions, "lag", 0.0), (ProjectionSmootherOptions, "lag", math.inf),
-    (EpipolarSmootherOptions, "loose_sigma", -1.0),
-    (EpipolarSmootherOptions, "relinearize_threshold", math.nan),
-    (EpipolarSmootherOptions, "backend", "kalman"),
-    (EpipolarSmootherOptions, "linearization", "second-estimate"),
-    (EpipolarSmootherOptions, "calibration_sigmas", (0.05, 0.0)),
-    (EpipolarSmootherOptions, "marginalise_every", 0),
-    (EpipolarSmootherOptions, "iterations", 0),
-    (EpipolarSmootherOptions, "keyframes", -1),
-    (EpipolarSmootherOptions, "agreement", 1.5),
-    (ProjectionSmootherOptions, "min_live_rows", 1),
-    (ProjectionSmootherOptions, "commit_every", 0),
-    (ProjectionSmootherOptions, "landmark_sigma", 0.0),
+@pytest.mark.parametrize(("field", "value"), [
+    ("lag", 0.0), ("lag", math.inf), ("loose_sigma", -1.0),
+    ("relinearize_threshold", math.nan), ("min_live_rows", 1), ("commit_every", 0),
+    ("landmark_sigma", 0.0), ("point_iterations", 0), ("max_landmarks", -1),
 ])
-def test_bad_fields_are_refused_by_name(kind: type, field: str, value: object) -> None:
-    with pytest.raises(ValueError, match=f"{kind.__name__}.{field} = "):
-        kind(**{field: value})
+def test_bad_fields_are_refused_by_name(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=f"SmootherOptions.{field} = "):
+        SmootherOptions(**{field: value})
 
 
 def test_numbers_are_stored_as_plain_types() -> None:
-    options = EpipolarSmootherOptions(iterations=np.int64(2), lag=np.float32(0.5))
-    assert type(options.iterations) is int and type(options.lag) is float
+    options = SmootherOptions(min_live_rows=np.int64(3), lag=np.float32(0.5))
+    assert type(options.min_live_rows) is int and type(options.lag) is float
 
 
 def test_keywords_build_the_record_and_read_back(robot: Robot) -> None:
-    smoother = FixedLagSmoother(robot, lag=0.5, iterations=2, calibrate=True)
-    assert smoother.settings == EpipolarSmootherOptions(lag=0.5, iterations=2, calibrate=True)
-    assert smoother.lag == 0.5 and smoother.iterations == 2 and smoother.calibrate
-    projection = ProjectionFixedLagSmoother(robot, landmarks=False)
-    assert projection.settings == ProjectionSmootherOptions(landmarks=False)
-    assert projection.loose_sigma == math.radians(30.0) and not projection.landmarks
+    smoother = FixedLagSmoother(robot, lag=0.5, landmarks=False)
+    assert smoother.settings == SmootherOptions(lag=0.5, landmarks=False)
+    assert smoother.lag == 0.5 and not smoother.landmarks
+    assert smoother.loose_sigma == math.radians(30.0)
     with pytest.raises(AttributeError):
-        _ = projection.no_such_field
+        _ = smoother.no_such_field
 
 
 def test_a_whole_record_with_keywords_overriding_it(robot: Robot) -> None:
-    base = EpipolarSmootherOptions(lag=0.5, backend="batch")
+    base = SmootherOptions(lag=0.5, commit_every=3)
     assert FixedLagSmoother(robot, settings=base).settings is base
-    smoother = FixedLagSmoother(robot, settings=base, lag=2.0, seed=3)
-    assert smoother.settings == EpipolarSmootherOptions(lag=2.0, backend="batch", seed=3)
+    smoother = FixedLagSmoother(robot, settings=base, lag=2.0, max_landmarks=4)
+    assert smoother.settings == SmootherOptions(lag=2.0, commit_every=3, max_landmarks=4)
     with pytest.raises(TypeError, match="settings"):
-        FixedLagSmoother(robot, settings=ProjectionSmootherOptions())  # type: ignore[arg-type]
+        FixedLagSmoother(robot, settings={"lag": 2.0})  # type: ignore[arg-type]
 
 
 def test_unknown_keywords_are_refused(robot: Robot) -> None:
-    with pytest.raises(TypeError, match="landmarks"):
-        FixedLagSmoother(robot, landmarks=True)
     with pytest.raises(TypeError, match="backend"):
-        ProjectionFixedLagSmoother(robot, backend="batch")
+        FixedLagSmoother(robot, backend="batch")
+    with pytest.raises(TypeError, match="landmark_sigmas"):
+        FixedLagSmoother(robot, landmark_sigmas=3.0)

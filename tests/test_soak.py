@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from apcc_graph.cli import main
-from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
+from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.io import load_robot
 from apcc_graph.simulation.stream import SimulatedStream
 
@@ -18,7 +18,7 @@ ROBOT = Path(__file__).resolve().parents[1] / "data" / "robots" / "planar_three.
 FRAMES = 360
 
 
-def _state(sm: ProjectionFixedLagSmoother) -> dict[str, int]:
+def _state(sm: FixedLagSmoother) -> dict[str, int]:
     """Sizes of everything a long stream could make grow."""
     w = sm._window
     graph = w.smoother.getFactors()
@@ -31,7 +31,7 @@ def _state(sm: ProjectionFixedLagSmoother) -> dict[str, int]:
 def test_a_long_stream_keeps_bounded_state() -> None:
     robot = load_robot(ROBOT)
     stream = SimulatedStream(robot, noise_px=1.0, outlier_fraction=0.1, seed=5, n_points=3000)
-    sm = ProjectionFixedLagSmoother(robot, lag=1.0, theta0=stream.thetas(0), uncertainty=False)
+    sm = FixedLagSmoother(robot, lag=1.0, theta0=stream.thetas(0), uncertainty=False)
     truth: dict[int, np.ndarray] = {}
     returned, errors, sizes = [], [], {}
     for f in range(FRAMES):

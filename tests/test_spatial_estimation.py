@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from apcc_graph import estimate
 from apcc_graph.estimation.graph import bend_limit_factor, camera_chain, camera_observations
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
+from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.spatial_bends import (
     bends_from,
     polar_from,
@@ -230,8 +230,8 @@ def test_spatial_smoother_follows_the_first_frames(robot) -> None:
     sim = simulate(robot, 40, noise_px=1.0, seed=11, scene="room", spatial=True, fps=30.0)
     seq = sim.sequence
     truth = bends_from(seq.thetas, seq.psis).reshape(40, -1, 2)
-    smoother = ProjectionFixedLagSmoother(robot, theta0=seq.thetas[0], psi0=seq.psis[0],
-                                          spatial=True)
+    smoother = FixedLagSmoother(robot, theta0=seq.thetas[0], psi0=seq.psis[0],
+                                spatial=True)
     errors = []
     for f in range(40):
         now = smoother.update(seq.frame(f))
@@ -276,8 +276,8 @@ def test_spatial_api_refusals(robot) -> None:
     with pytest.raises(ValueError, match="needs the start"):
         estimate(seq, spatial=True)
     with pytest.raises(ValueError, match="psi0 is given but spatial is False"):
-        ProjectionFixedLagSmoother(robot, theta0=theta0, psi0=[0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="projection model only"):
+        FixedLagSmoother(robot, theta0=theta0, psi0=[0.0, 0.0, 0.0])
+    with pytest.raises(TypeError, match="vision"):  # the epipolar back end is gone
         estimate(seq, theta0=theta0, spatial=True, vision="epipolar")
     with pytest.raises(ValueError, match=r"psi0 has shape \(2,\)"):
         estimate(seq, theta0=theta0, psi0=[0.0, 1.0], spatial=True)

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
-from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions
+from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.stillness import SPREAD_LIMIT, StillFrames, flow_statistics
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.io import load_robot
@@ -118,10 +118,10 @@ def test_nothing_is_held_when_the_base_moves_the_slot_left_or_holding_is_off() -
 
 def test_options_refuse_a_bad_stillness_setting() -> None:
     with pytest.raises(ValueError, match="still_frames = -1"):
-        ProjectionSmootherOptions(still_frames=-1)
+        SmootherOptions(still_frames=-1)
     with pytest.raises(ValueError, match="still_chi2 = 0.0"):
-        ProjectionSmootherOptions(still_chi2=0.0)
-    assert ProjectionSmootherOptions(still_frames=None).still_frames is None
+        SmootherOptions(still_chi2=0.0)
+    assert SmootherOptions(still_frames=None).still_frames is None
 
 
 @pytest.fixture(scope="module")
@@ -136,7 +136,7 @@ def frozen() -> tuple:
 
 
 def _run(robot, seq, **options) -> tuple[list[SmootherFrame], list[SmootherFrame], int]:
-    smoother = ProjectionFixedLagSmoother(robot, lag=1.0, theta0=seq.thetas[0], **options)
+    smoother = FixedLagSmoother(robot, lag=1.0, theta0=seq.thetas[0], **options)
     now, popped = [], []
     for f in range(seq.n_frames):
         now.append(smoother.update(seq.frame(f)))
@@ -187,7 +187,7 @@ def test_a_recording_that_starts_without_tracks_is_no_blackout(frozen: tuple) ->
     from apcc_graph.model.sequence import FrameObservations
 
     robot, seq = frozen
-    smoother = ProjectionFixedLagSmoother(robot, lag=1.0, theta0=seq.thetas[0])
+    smoother = FixedLagSmoother(robot, lag=1.0, theta0=seq.thetas[0])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         for f in range(3):  # the cameras warm up: nothing tracked yet

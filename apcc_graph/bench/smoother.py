@@ -11,15 +11,14 @@ exactly there). Every figure is measured here, in the same run:
   100-frame window;
 - the bound of a fixed-lag smoother (:func:`apcc_graph.evaluation.sequence_bound.lag_bound`): a
   smoother lets frame f go after frame f + lag, so no later observation can inform its final
-  estimate; sampled every 30 frames, beside the smoothers;
-- accuracy: RMS error per segment of the paper's chain, the fixed-lag smoother (lag 1 s,
-  projection model: the default), the batch (projection model) and the epipolar smoother,
-  each beside the bound of the same sequence: median over seeds of RMS / bound, the worst
-  seed, and the worst 100-frame window; for the smoothers also RMS / the lag bound; sigma
+  estimate; sampled every 30 frames, beside the smoother;
+- accuracy: RMS error per segment of the paper's chain, the fixed-lag smoother (lag 1 s) and
+  the batch, each beside the bound of the same sequence: median over seeds of RMS / bound, the worst
+  seed, and the worst 100-frame window; for the smoother also RMS / the lag bound; sigma
   honesty, the mean of ``(error / sigma)^2`` per segment, where the method reports sigmas;
-- drift over ``long_frames`` frames: the default smoother's RMS over frames 100-400 and the
+- drift over ``long_frames`` frames: the smoother's RMS over frames 100-400 and the
   last 300;
-- speed: the default smoother's ``update`` per frame (median, 95th percentile, 3 cameras,
+- speed: the smoother's ``update`` per frame (median, 95th percentile, 3 cameras,
   lag 1 s) and the batch's seconds;
 - memory: resident set size after 1,000 and after ``memory_frames`` frames of a stream whose
   finished frames are taken out (``pop_final``).
@@ -40,8 +39,6 @@ from tqdm import tqdm
 from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
-from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.projection_smoother import ProjectionFixedLagSmoother
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.evaluation.sequence_bound import LagBound, SequenceBound, lag_bound, sequence_bound
 from apcc_graph.io.robot_file import load_robot
@@ -56,10 +53,9 @@ N_POINTS = 4000
 NOISE_PX = 1.0
 THETA0_SIGMA = math.radians(0.1)
 WINDOW = 100
-EPIPOLAR = GraphOptions(vision="epipolar", theta0_sigma=THETA0_SIGMA)
 LAG_STEP = 30
-METHODS = ("chain", "smoother", "batch", "epipolar smoother")
-SMOOTHERS = ("smoother", "epipolar smoother")
+METHODS = ("chain", "smoother", "batch")
+SMOOTHERS = ("smoother",)
 
 
 @dataclass(frozen=True)
@@ -121,7 +117,7 @@ def _simulate(robot: Robot, frames: int, outliers: float, seed: int) -> Simulati
                     fps=FPS, scene="room", n_points=N_POINTS)
 
 
-def _stream(smoother: FixedLagSmoother | ProjectionFixedLagSmoother, sequence: Sequence,
+def _stream(smoother: FixedLagSmoother, sequence: Sequence,
             progress: bool, label: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Final angles and sigmas ``(F, S)`` and update times ``(F,)`` of a smoother run."""
     times = np.empty(sequence.n_frames)
@@ -145,14 +141,11 @@ def _estimators(sim: Simulation, methods: SequenceOf[str], progress: bool
         start = time.perf_counter()
         if method == "chain":
             thetas, sigmas = chain_estimate(seq, theta0=theta0, progress=progress).thetas, None
-        elif method == "epipolar smoother":
-            sm = FixedLagSmoother(seq.robot, lag=LAG, theta0=theta0, options=EPIPOLAR)
-            thetas, sigmas, _ = _stream(sm, seq, progress, "epipolar smoother")
         elif method == "batch":
             est = batch_estimate(seq, theta0=theta0, progress=progress)
             thetas, sigmas = est.thetas, est.sigmas
         elif method == "smoother":
-            ps = ProjectionFixedLagSmoother(seq.robot, lag=LAG, theta0=theta0)
+            ps = FixedLagSmoother(seq.robot, lag=LAG, theta0=theta0)
             thetas, sigmas, _ = _stream(ps, seq, progress, "smoother")
         else:
             raise ValueError(f"method {method!r}: expected one of {METHODS}")
@@ -202,11 +195,11 @@ def _accuracy(robot: Robot, frames: int, seeds: SequenceOf[int], outliers: Seque
 
 def _drift(robot: Robot, frames: int, seed: int, progress: bool
            ) -> tuple[float, float, float, float]:
-    """The default smoother over a long run: RMS over frames 100-400 and the last 300
+    """The smoother over a long run: RMS over frames 100-400 and the last 300
     (radians), and the median and 95th percentile of its update time (seconds)."""
     seq = _simulate(robot, frames, 0.1, seed).sequence
     assert seq.thetas is not None
-    sm = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
+    sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
     thetas, _, times = _stream(sm, seq, progress, "long run")
     err = thetas - seq.thetas
     return (float(rms(err[100:400], axis=None)), float(rms(err[-300:], axis=None)),
@@ -218,7 +211,7 @@ def _memory(robot: Robot, frames: int, seed: int, progress: bool) -> tuple[float
     finished frames are taken out, as a streaming user would."""
     seq = _simulate(robot, frames, 0.1, seed).sequence
     assert seq.thetas is not None
-    sm = ProjectionFixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
+    sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
     rss_small = float("nan")
     for f in tqdm(range(frames), desc="memory", disable=not progress, leave=False):
         sm.update(seq.frame(f))

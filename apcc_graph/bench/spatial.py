@@ -33,7 +33,7 @@ from tqdm import tqdm
 from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.estimation.smoother_runs import projection_smoother_estimate
+from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
 from apcc_graph.estimation.spatial_chain import spatial_chain_estimate
 from apcc_graph.evaluation.sequence_bound import sequence_bound
@@ -89,7 +89,7 @@ def _estimate(method: str, seq, progress: bool) -> Estimate:
     if method == "batch":
         return spatial_batch_estimate(seq, theta0, psi0, options=options, progress=progress)
     if method == "smoother":
-        return projection_smoother_estimate(seq, theta0, options=options, progress=progress,
+        return smoother_estimate(seq, theta0, options=options, progress=progress,
                                             spatial=True, psi0=psi0)
     raise ValueError(f"method {method!r}: expected one of {', '.join(METHODS)}")
 

@@ -23,6 +23,7 @@ EXAMPLES = {
     "selfcal": "apcc-graph bench selfcal --frames 600 --seeds 1,2,3",
     "images": "apcc-graph bench images --frames 150 --seeds 1,2,3,4,5",
     "spatial": "apcc-graph bench spatial\n  apcc-graph bench spatial --frames 150 --seeds 1",
+    "young-tracks": "apcc-graph bench young-tracks --frames 300 --seeds 0,1,2",
 }
 """Example commands per benchmark of this module."""
 
@@ -43,10 +44,10 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         help="the back end against the Cramer-Rao bound: accuracy, drift, speed, memory",
         description="Simulate 3-segment room-scene sequences (1 px noise, 10%% and 30%% "
         "outliers, ~150 tracks per camera, 30 fps) and measure the chain, the fixed-lag "
-        "smoother, the batch and the epipolar smoother beside the Cramer-Rao bound of the "
-        "same sequences (and the smoothers beside the bound of a 1 s fixed lag), in one run.",
+        "smoother and the batch beside the Cramer-Rao bound of the same sequences (and the "
+        "smoother beside the bound of a 1 s fixed lag), in one run.",
         parents=[frames_option(600, minimum=30, help="frames of each accuracy run")])
-    smb.add_argument("--methods", default="chain,smoother,batch,epipolar smoother",
+    smb.add_argument("--methods", default="chain,smoother,batch",
                      help="estimators, comma-separated (default: %(default)s)")
     smb.add_argument("--outliers", default="0.1,0.3",
                      help="outlier fractions, comma-separated (default: %(default)s)")
@@ -94,6 +95,23 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
     spb.add_argument("--methods", default="chain,batch,smoother",
                      help="estimators, comma-separated (default: %(default)s)")
     spb.set_defaults(run=run_spatial)
+
+    _add_young_tracks(benches)
+
+
+def _add_young_tracks(benches: argparse._SubParsersAction) -> None:
+    """Add ``apcc-graph bench young-tracks``."""
+    ytb = _bench(
+        benches, "young-tracks", "0,1,2",
+        help="what tracks in their 2nd and 3rd frame add to the smoother's newest frame",
+        description="Run the fixed-lag smoother on room-scene sequences of the 3-segment "
+        "robot (1 px, 30 fps) with young tracks joining the newest frame's estimate after 4 "
+        "observations (the default) and after 2 (every observation at once: an upper bound "
+        "on what epipolar factors for young tracks could add), and print the newest-frame "
+        "and final RMS errors per segment.",
+        parents=[frames_option(300, minimum=30)])
+    ytb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction")
+    ytb.set_defaults(run=run_young_tracks)
 
 
 def run_smoother(args: argparse.Namespace) -> str:
@@ -170,3 +188,14 @@ def run_images(args: argparse.Namespace) -> str:
     except ImportError as error:
         raise UserError(str(error)) from None
     return format_images_benchmark(runs, args.frames, args.noise)
+
+
+def run_young_tracks(args: argparse.Namespace) -> str:
+    """Run the young-tracks benchmark; return its table."""
+    from apcc_graph.bench.young_tracks import format_young_tracks, run_young_tracks_benchmark
+
+    if not 0.0 <= args.outliers < 1.0:
+        raise UserError(f"--outliers {args.outliers!r}: expected a fraction in [0, 1)")
+    return format_young_tracks(run_young_tracks_benchmark(
+        frames=args.frames, seeds=int_list(args.seeds, "--seeds"), outliers=args.outliers,
+        progress=True))

@@ -62,13 +62,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     est.add_argument("--noise-px", type=float, default=1.0,
                      help="pixel noise of the tracks, standard deviation per coordinate "
                      "(default: %(default)s); sets the outlier threshold and the sigmas")
-    est.add_argument("--vision", choices=("projection", "epipolar"), default=None,
-                     help="vision model: projection (default: every observation once, each "
-                     "track's point eliminated) or epipolar (frame pairs, for comparison)")
     est.add_argument("--calibrate", action="store_true",
                      help="self-calibration: estimate each segment's k and delta_max with the "
-                     "angles (batch; or smoother with --vision epipolar); the batch writes "
-                     "robot_calibrated.toml")
+                     "angles (--method batch); it writes robot_calibrated.toml")
     many = est.add_argument_group(
         "many sequences", "with several sequences, each goes to --out/<name>/ and --out gets\n"
         "summary.csv; a re-run skips sequences whose outputs are complete (--force redoes\n"
@@ -126,9 +122,8 @@ def _spatial_options(args: argparse.Namespace) -> dict:
         raise UserError("--spatial needs the start: give --theta0-deg (and --psi0-deg unless "
                         "the bending planes start at 0); the search for an unknown start "
                         "covers planar robots only")
-    if args.vision == "epipolar" or args.calibrate:
-        raise UserError("--spatial runs the projection model without self-calibration: drop "
-                        "--vision epipolar and --calibrate")
+    if args.calibrate:
+        raise UserError("--spatial runs without self-calibration: drop --calibrate")
     return {"spatial": True}
 
 
@@ -154,14 +149,10 @@ def _options(args: argparse.Namespace) -> dict:
         if not (math.isfinite(args.noise_px) and args.noise_px > 0.0):
             raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of "
                             "pixels")
-        options["vision"] = args.vision
         options["threshold_px"] = args.noise_px
-    elif args.vision is not None:
-        raise UserError("--vision applies to --method batch and smoother only")
     if args.calibrate:
-        if args.method == "chain" or (args.method == "smoother" and args.vision != "epipolar"):
-            raise UserError("--calibrate: self-calibration runs in --method batch, or in "
-                            "--method smoother --vision epipolar")
+        if args.method != "batch":
+            raise UserError("--calibrate: self-calibration runs in --method batch")
         options["calibrate"] = True
     return options
 

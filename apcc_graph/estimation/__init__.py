@@ -6,24 +6,20 @@
 - The paper's chain, frame by frame and segment by segment (:mod:`~apcc_graph.estimation.chain`).
 - The start when nobody gives it: hypotheses refined by the batch over the first second,
   reported undetermined when the images cannot tell (:mod:`~apcc_graph.estimation.start_search`).
-- Graph building shared by the batch and the smoothers: the options
+- Graph building shared by the batch and the smoother: the options
   (:mod:`~apcc_graph.estimation.options`), the projection-model terms
-  (:mod:`~apcc_graph.estimation.graph`), the epipolar graph
-  (:mod:`~apcc_graph.estimation.epipolar_graph`) and outlier decisions
+  (:mod:`~apcc_graph.estimation.graph`) and outlier decisions
   (:mod:`~apcc_graph.estimation.robust`).
 - The batch optimiser (:mod:`~apcc_graph.estimation.batch`).
-- The fixed-lag smoothers: their options (:mod:`~apcc_graph.estimation.smoother_options`), the
-  window both share (:mod:`~apcc_graph.estimation.window`), a new frame's start
-  (:mod:`~apcc_graph.estimation.initial_guess`); the default one on the projection model
-  (:mod:`~apcc_graph.estimation.projection_smoother`, with
-  :mod:`~apcc_graph.estimation.projection_tracks`, :mod:`~apcc_graph.estimation.live_tracks`
-  and :mod:`~apcc_graph.estimation.landmarks`) and the epipolar one
-  (:mod:`~apcc_graph.estimation.smoother`, with
-  :mod:`~apcc_graph.estimation.epipolar_front_end`,
-  :mod:`~apcc_graph.estimation.epipolar_window`, :mod:`~apcc_graph.estimation.first_estimate`
-  and :mod:`~apcc_graph.estimation.online_calibration`).
+- The fixed-lag smoother (:mod:`~apcc_graph.estimation.smoother`): its options
+  (:mod:`~apcc_graph.estimation.smoother_options`), its window
+  (:mod:`~apcc_graph.estimation.window`), a new frame's start
+  (:mod:`~apcc_graph.estimation.initial_guess`), the tracks it watches
+  (:mod:`~apcc_graph.estimation.projection_tracks`, :mod:`~apcc_graph.estimation.live_tracks`)
+  and its landmarks (:mod:`~apcc_graph.estimation.landmarks`); a run over a recorded sequence
+  (:mod:`~apcc_graph.estimation.smoother_runs`).
 
 May import: :mod:`apcc_graph.model`, :mod:`apcc_graph.io`, :mod:`apcc_graph.frontend`,
-:mod:`apcc_graph.calibration`, :mod:`apcc_graph.simulation` and :mod:`factors`; never the
+:mod:`apcc_graph.calibration`, :mod:`apcc_graph.simulation` and :mod:`apcc_graph.factors`; never the
 evaluation, the benchmarks, the plots or the command line.
 """

@@ -3,8 +3,7 @@
 The graph (:mod:`apcc_graph.estimation.graph`): one ``Vector(S)`` of angles per frame, the
 start prior, a weak motion prior, soft joint limits, and per camera the projection factors of
 its tracks: every observation once, each track's 3-D point triangulated and eliminated
-(``docs/estimation.md``). With ``GraphOptions(vision="epipolar")`` the older generalized
-epipolar graph is solved instead (:mod:`apcc_graph.estimation.epipolar_graph`), for comparison.
+(``docs/estimation.md``).
 
 Outliers are decided per observation against its own track's point, by graduated
 non-convexity of a truncated quadratic (:mod:`apcc_graph.estimation.robust`): the first
@@ -34,7 +33,6 @@ from apcc_graph.estimation.batch_solve import (
     projection_solve,
 )
 from apcc_graph.estimation.chain import chain_estimate
-from apcc_graph.estimation.epipolar_graph import epipolar_solve
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_runs import smoother_estimate
@@ -90,8 +88,8 @@ def batch_estimate(
             ``"chain"`` (default: the paper's chained 1-point estimate, fast; it drifts, and
             the graduated non-convexity of the outlier decisions brings the batch back from
             there) or ``"smoother"`` (the fixed-lag smoother: closer, slower).
-        schedule: the GNC continuation of the outlier decisions (projection model).
-        calibrate: self-calibration (projection model): estimate each segment's k and
+        schedule: the GNC continuation of the outlier decisions.
+        calibrate: self-calibration: estimate each segment's k and
             delta_max jointly with the angles, with priors of ``calibration_sigmas``
             (k, delta_max in radians) around the robot's values. The estimate's ``robot``
             then holds the calibrated segments and ``calibration_sigmas`` their marginal
@@ -101,27 +99,18 @@ def batch_estimate(
         The estimate, ``method = "batch"``.
     """
     options = GraphOptions() if options is None else options
-    if calibrate and options.vision != "projection":
-        raise ValueError("calibrate=True: the batch self-calibrates on the projection model "
-                         f"only (vision = {options.vision!r})")
     if init not in INITS:
         raise ValueError(f"init = {init!r}: expected one of {INITS}")
-    n_seg = sequence.n_segments
     theta0 = sequence.robot.configuration(theta0)
     initial, status = _initial_angles(sequence, theta0, initial, init, options, progress)
-    inliers = np.zeros((sequence.n_frames, n_seg), dtype=np.int64)
     robot, cal_sigmas = sequence.robot, None
-    if options.vision == "epipolar":
-        thetas, sigmas = epipolar_solve(sequence, initial, theta0, options,
-                                        max_iterations=max_iterations, marginals=marginals)
-    else:
-        found = projection_solve(sequence, initial, theta0, options, schedule, max_iterations,
-                                 marginals=marginals, progress=progress,
-                                 calibrate=calibrate, calibration_sigmas=calibration_sigmas)
-        thetas, sigmas, inliers = found.thetas, found.sigmas, found.inliers
-        if found.segments is not None:
-            robot = Robot(found.segments, robot.cameras)
-            cal_sigmas = found.calibration_sigmas
+    found = projection_solve(sequence, initial, theta0, options, schedule, max_iterations,
+                             marginals=marginals, progress=progress, calibrate=calibrate,
+                             calibration_sigmas=calibration_sigmas)
+    thetas, sigmas, inliers = found.thetas, found.sigmas, found.inliers
+    if found.segments is not None:
+        robot = Robot(found.segments, robot.cameras)
+        cal_sigmas = found.calibration_sigmas
     status = np.where(np.char.startswith(status, "initial"), "initial", "ok").astype("<U24")
     return Estimate(method="batch", robot=robot, timestamps=sequence.timestamps.copy(),
                     thetas=thetas, sigmas=sigmas, status=status, inliers=inliers,

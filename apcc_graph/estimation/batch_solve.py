@@ -3,7 +3,7 @@
 
 :func:`projection_solve` starts from given angles;
 :func:`apcc_graph.estimation.batch.batch_estimate` finds them (the chain or the smoother) and
-calls it, and so does the projection smoother when it re-acquires the angles after a blackout
+calls it, and so does the smoother when it re-acquires the angles after a blackout
 (:mod:`apcc_graph.estimation.blackout`). See :mod:`apcc_graph.estimation.batch` for the method.
 """
 
@@ -59,8 +59,9 @@ def build_terms(sequence: Sequence, options: GraphOptions,
                                   max_track_frames=options.max_track_frames)
         if obs is None:
             continue
-        chain = camera_chain(sequence.robot, cam, sequence.world_T_base, sequence.psis,
-                             spatial)
+        # A planar robot bends in the plane psi = 0; the sequence's psis are ground truth,
+        # which no estimator reads.
+        chain = camera_chain(sequence.robot, cam, sequence.world_T_base, None, spatial)
         terms.append(CameraTerms(obs, chain, dim, options.frames_per_chunk, calibrate))
     return terms
 

@@ -8,7 +8,7 @@ only as far as the cameras' parallax and the kinematic chain tell them, and the 
 Gauss-Newton steps from a start that far off end in another minimum (60 degrees off on the
 reliability bench, where the robot moved 60 degrees in the dark).
 
-So the projection smoother says so (:class:`BlackoutWarning`, with the sigma the motion prior
+So the smoother says so (:class:`BlackoutWarning`, with the sigma the motion prior
 had left) and *re-acquires* the angles (:class:`Reacquisition`): it keeps the observations of
 the frames after the blackout until the first of them is about to leave the window, then
 solves those frames in one batch (:func:`~apcc_graph.estimation.batch_solve.projection_solve`,

@@ -90,6 +90,17 @@ class LiveTracks:
         w = np.ones(len(ids)) if weights is None else np.asarray(weights, dtype=float)
         state.rows.append(_FrameRows(frame, pieces, ids, xy, whiten, w))
 
+    def frame_rows(self, frame: int
+                   ) -> dict[int, tuple[IntArray, FloatArray, FloatArray, FloatArray]]:
+        """Camera -> the track ids, normalised coordinates, whitening and weights of its
+        observations in ``frame`` (cameras that saw it while it is still held)."""
+        out = {}
+        for cam, state in self._cams.items():
+            for r in state.rows:
+                if r.frame == frame and len(r.ids):
+                    out[cam] = (r.ids.copy(), r.xy.copy(), r.whiten.copy(), r.weights.copy())
+        return out
+
     def take_due(self, frame: int, seen: dict[int, IntArray], leaving_before: int,
                  commit_ended: bool = True) -> dict[int, TrackObservations]:
         """Commit the pieces that are due before frame ``frame``'s observations are added.

@@ -41,9 +41,8 @@ def check_observations(sequence: Sequence) -> None:
 
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
-             theta0_sigma: float | None = None, vision: str | None = None,
-             threshold_px: float | None = None, spatial: bool = False,
-             psi0: ArrayLike | None = None, **options: Any) -> Estimate:
+             theta0_sigma: float | None = None, threshold_px: float | None = None,
+             spatial: bool = False, psi0: ArrayLike | None = None, **options: Any) -> Estimate:
     """Estimate every frame's segment angles.
 
     Args:
@@ -57,9 +56,6 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         theta0_sigma: standard deviation of the prior on ``theta0`` (radians; default
             :class:`~apcc_graph.estimation.options.GraphOptions`' 0.1 deg); batch and
             smoother only (the chain starts exactly at ``theta0``), and only with ``theta0``.
-        vision: ``"projection"`` (default: every observation once, each track's point
-            eliminated) or ``"epipolar"`` (frame pairs, for comparison); batch and smoother
-            only.
         threshold_px: the tracks' pixel noise (pixels, default 1); batch and smoother only.
         spatial: the robot bends in 3-D: estimate every segment's bending plane ``psi`` too
             (the estimate's ``psis`` and ``psi_sigmas``), in bending vectors smooth through
@@ -68,9 +64,8 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` only.
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
             :func:`~apcc_graph.estimation.batch.batch_estimate` or
-            :func:`~apcc_graph.estimation.smoother.smoother_estimate`); e.g.
-            ``calibrate=True``, self-calibration of each segment's k and delta_max (batch, or
-            smoother with ``vision="epipolar"``).
+            :func:`~apcc_graph.estimation.smoother_runs.smoother_estimate`); e.g.
+            ``calibrate=True``, self-calibration of each segment's k and delta_max (batch).
 
     Raises:
         TypeError: ``sequence`` is not a :class:`~apcc_graph.model.sequence.Sequence` (a path
@@ -78,7 +73,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
             ``theta_max`` (radians); a sequence without a single observation;
             ``theta0_sigma`` without ``theta0``; ``psi0`` without ``spatial``; ``spatial``
-            without ``theta0``, or with the epipolar model.
+            without ``theta0``.
         UnknownStartError: (a ``ValueError``) no ``theta0``, and the recording never tells
             the start (the robot never moved enough; the message says which segment).
 
@@ -95,8 +90,8 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         sequence.robot.configuration(theta0)
     check_observations(sequence)
     if spatial or psi0 is not None:
-        return _spatial(sequence, method, theta0, theta0_sigma, psi0, spatial, vision,
-                        threshold_px, options)
+        return _spatial(sequence, method, theta0, theta0_sigma, psi0, spatial, threshold_px,
+                        options)
     start = None
     if theta0 is None:
         if theta0_sigma is not None:
@@ -104,7 +99,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
                              "finds the start's uncertainty itself; give theta0 too, or "
                              "neither")
         theta0, theta0_sigma, start = _unknown_start(sequence, method, threshold_px, options)
-    if method in ("batch", "smoother") and (theta0_sigma is not None or vision is not None
+    if method in ("batch", "smoother") and (theta0_sigma is not None
                                             or threshold_px is not None):
         from dataclasses import replace
 
@@ -115,13 +110,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             changes["theta0_sigma"] = float(theta0_sigma)
         if threshold_px is not None:
             changes["threshold_px"] = float(threshold_px)
-        if vision is not None and method == "batch":
-            changes["vision"] = vision
-        if vision is not None and method == "smoother":
-            options["vision"] = vision
         options["options"] = replace(options.get("options") or GraphOptions(), **changes)
-    elif method == "chain" and vision not in (None, "epipolar"):
-        raise ValueError(f"vision = {vision!r}: the chain is the epipolar 1-point front end")
     result = _run(sequence, method, theta0, options)
     if start is None:
         return result
@@ -132,7 +121,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
 
 def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
              theta0_sigma: float | None, psi0: ArrayLike | None, spatial: bool,
-             vision: str | None, threshold_px: float | None, options: dict[str, Any]
+             threshold_px: float | None, options: dict[str, Any]
              ) -> Estimate:
     """A spatial robot's estimate: the chained 2-point method, the spatial batch or the
     fixed-lag smoother in bending vectors."""
@@ -142,9 +131,6 @@ def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
     if theta0 is None:
         raise ValueError("spatial=True needs the start (theta0, and psi0 unless 0): the search "
                          "for an unknown start covers planar robots only")
-    if vision not in (None, "projection"):
-        raise ValueError(f"vision = {vision!r}: a spatial robot is estimated with the "
-                         "projection model only")
     if method == "chain":
         from apcc_graph.estimation.spatial_chain import spatial_chain_estimate
 
@@ -162,10 +148,9 @@ def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
         changes["threshold_px"] = float(threshold_px)
     options["options"] = replace(options.get("options") or GraphOptions(), **changes)
     if method == "smoother":
-        from apcc_graph.estimation.smoother_runs import projection_smoother_estimate
+        from apcc_graph.estimation.smoother_runs import smoother_estimate
 
-        return projection_smoother_estimate(sequence, theta0, spatial=True, psi0=psi0,
-                                            **options)
+        return smoother_estimate(sequence, theta0, spatial=True, psi0=psi0, **options)
     from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
 
     return spatial_batch_estimate(sequence, theta0, psi0, **options)

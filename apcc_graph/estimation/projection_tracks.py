@@ -1,4 +1,4 @@
-"""The projection smoother's track factors: live pieces, committed pieces, outlier decisions.
+"""The smoother's track factors: live pieces, committed pieces, outlier decisions.
 
 Every observation enters the smoother's graph exactly once. While its track piece is live
 (:mod:`apcc_graph.estimation.live_tracks`) it sits in one "live" projection factor per camera,
@@ -28,7 +28,7 @@ from apcc_graph.estimation.landmarks import Landmarks
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_tls_weights
-from apcc_graph.estimation.smoother_options import ProjectionSmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.window import Window, observed_camera
 from apcc_graph.factors.camera_chain import CameraChain
 from apcc_graph.factors.projection import ProjectionFactor
@@ -45,7 +45,7 @@ LiveFactor = tuple[int, int, ProjectionFactor]
 
 
 class ProjectionTracks:
-    """The track pieces of the projection smoother and their factors.
+    """The track pieces of the smoother and their factors.
 
     Args:
         robot: the robot.
@@ -62,7 +62,7 @@ class ProjectionTracks:
     """
 
     def __init__(self, robot: Robot, options: GraphOptions,
-                 settings: ProjectionSmootherOptions, window: Window,
+                 settings: SmootherOptions, window: Window,
                  spatial: bool = False) -> None:
         self.robot = robot
         self.dim = (2 if spatial else 1) * robot.n_segments  # a frame's vector
@@ -80,9 +80,13 @@ class ProjectionTracks:
         max_frames = self.options.max_track_frames or 10**9
         return LiveTracks(self.robot.camera_segments, max_frames, self.options.min_track_rows)
 
-    def reset(self) -> None:
-        """Forget every live piece (after the smoother restarted)."""
-        self.live = self._new_live()
+    def reset(self, keep: int | None = None) -> None:
+        """Forget every live piece (after the smoother restarted); the observations of frame
+        ``keep`` (the frame the new window holds) start new pieces."""
+        old, self.live = self.live, self._new_live()
+        if keep is not None:
+            for cam, (ids, xy, whiten, weights) in old.frame_rows(keep).items():
+                self.live.add(keep, cam, ids, xy, whiten, weights)
 
     def chain(self, cam: int, first: int, last: int) -> CameraChain:
         """Camera ``cam``'s chain with the base poses of frames ``first..last``."""

@@ -1,122 +1,165 @@
-"""The epipolar fixed-lag smoother (:class:`FixedLagSmoother`) and :func:`smoother_estimate`,
-which runs either smoother over a recorded sequence.
+"""The fixed-lag smoother: :class:`FixedLagSmoother`, behind ``estimate(..., method="smoother")``.
 
-The epipolar smoother (``vision="epipolar"``) is kept for comparison and for its online
-self-calibration: it grows the epipolar graph (:mod:`apcc_graph.estimation.epipolar_graph`) one
-frame at a time. The default smoother is the projection one
-(:mod:`apcc_graph.estimation.projection_smoother`); ``docs/estimation.md`` compares them. Graph:
+Every observation enters the graph once, in a projection factor that eliminates its track's
+point or, for a track that outlives the window, as a landmark observation (``apcc-graph bench
+smoother`` measures it against the Cramer-Rao bounds).
 
-- variables ``theta[f, i]`` (Vector1, radians), key ``f * S + i`` (as the batch);
-- a prior on the first frame (``theta0``), a random-walk motion prior between consecutive frames,
-  soft joint limits;
-- per camera and new frame b, one generalized epipolar factor against every earlier frame
-  ``b - gap`` (and keyframe) still in the window, built by the front end
-  (:mod:`apcc_graph.estimation.epipolar_front_end`), first-estimate by default
-  (:mod:`apcc_graph.estimation.first_estimate`);
-- optionally each segment's k and delta_max as variables
-  (:mod:`apcc_graph.estimation.online_calibration`).
+The pieces it drives: the window (:mod:`apcc_graph.estimation.window`); the graph
+(:mod:`apcc_graph.estimation.graph`: the angles of each frame, the start prior, a weak motion
+prior, soft joint limits, the projection factors); the track pieces, committed into one factor
+when their track ends, when their first frame is about to leave the window, or at
+``GraphOptions.max_track_frames`` (:mod:`apcc_graph.estimation.projection_tracks`,
+:mod:`apcc_graph.estimation.live_tracks`); the new frame's initial angles
+(:mod:`apcc_graph.estimation.initial_guess`); the landmarks, tracks that outlive the window
+(:mod:`apcc_graph.estimation.landmarks`); the still frames (:mod:`apcc_graph.estimation.stillness`).
 
-gtsam's ``IncrementalFixedLagSmoother`` (iSAM2, default) or ``BatchFixedLagSmoother`` holds the
-window (:mod:`apcc_graph.estimation.epipolar_window`). Failure modes handled (each has a test):
+gtsam's ``IncrementalFixedLagSmoother`` (iSAM2) holds the window, re-linearises the factors
+whose frames move more than ``relinearize_threshold`` and marginalises frames older than ``lag``.
 
-- a frame without tracks in some or all cameras: the motion prior carries the angles; if the
-  motion prior is disabled, a weak prior at the prediction (``loose_sigma``) keeps the system
-  determined;
-- a robot standing still: pairs without parallax are left out (the motion prior holds it);
-- gtsam's indeterminate-system exception: caught; the update is repaired by weak priors on the
-  new frame's angles, and if that fails too the smoother restarts from its last estimate;
-- gtsam's marginalisation helper losing a variable's clique (``IndexError``): the smoother
-  restarts from its last estimate;
-- tracks resuming after a blackout: the front end re-initialises from the last frame that
-  shares tracks instead of trusting the extrapolated prediction.
+Failure modes handled: a frame without tracks (the motion prior carries it; without a motion
+prior, a loose prior at the initial guess keeps the system determined, so marginalising such a
+frame is safe); a robot standing still (after a few still frames the next ones are held out of
+the graph: :mod:`apcc_graph.estimation.stillness`); gtsam's indeterminate-system exception
+(caught; the smoother restarts from its last estimate with the start prior at that estimate).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import fields
 from typing import Any
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.estimation.epipolar_front_end import EpipolarFrontEnd, StoredFrame
-from apcc_graph.estimation.epipolar_graph import angle_key
-from apcc_graph.estimation.epipolar_window import EpipolarWindow
-from apcc_graph.estimation.first_estimate import FirstEstimateFactors, Fresh
-from apcc_graph.estimation.initial_guess import predict
-from apcc_graph.estimation.online_calibration import OnlineCalibration
+from apcc_graph.estimation.blackout import Reacquisition, tracks_returned, warn_blackout
+from apcc_graph.estimation.frame_priors import frame_priors
+from apcc_graph.estimation.graph import frame_key
+from apcc_graph.estimation.initial_guess import predict, refine
+from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.smoother_options import EpipolarSmootherOptions, smoother_settings
+from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
+from apcc_graph.estimation.smoother_options import SmootherOptions, smoother_settings
+from apcc_graph.estimation.spatial_bends import start_bends
+from apcc_graph.estimation.spatial_stream import covariance_blocks, front_end_guess, present
+from apcc_graph.estimation.start_check import check_start
+from apcc_graph.estimation.stillness import StillFrames
 from apcc_graph.estimation.window import (
     SmootherFrame,
-    StreamingSmoother,
+    Window,
+    check_timestamp,
     key_stamps,
+    new_gtsam_smoother,
     start_angles,
     warn_restart,
 )
-from apcc_graph.factors.priors import angle_prior, joint_limit_factor, motion_prior
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
 
-__all__ = ["FixedLagSmoother"]
 
-
-class FixedLagSmoother(StreamingSmoother):
+class FixedLagSmoother:
     """Streaming estimator of a robot's segment angles: ``update(frame)`` once per frame.
 
     Args:
         robot: the robot model.
         lag: window length (seconds); default ``settings.lag`` (1 s).
-        options: graph construction (:class:`~apcc_graph.estimation.options.GraphOptions`);
-            ``gaps`` longer than the window are unused.
-        theta0: ``(S,)`` starting configuration in radians (default straight).
+        options: graph construction (:class:`~apcc_graph.estimation.options.GraphOptions`).
+        theta0: ``(S,)`` starting configuration in radians (default straight), held by a prior
+            of ``options.theta0_sigma``.
         settings: the smoother's options
-            (:class:`~apcc_graph.estimation.smoother_options.EpipolarSmootherOptions`).
-        **keywords: fields of :class:`EpipolarSmootherOptions` (``backend``, ``calibrate``,
-            ``iterations``, ...), overriding ``settings``; they read back as attributes.
-
-    Frames leaving the window keep the estimate (and marginal sigma) of the last update in which
-    they were inside it; :meth:`finish` returns every frame's final estimate.
+            (:class:`~apcc_graph.estimation.smoother_options.SmootherOptions`).
+        spatial: the robot bends in 3-D: every frame's variables are its bending vectors
+            (:mod:`apcc_graph.estimation.spatial_stream`), and the frames returned have
+            ``psis`` and ``psi_sigmas``; re-acquisition after a blackout is planar only.
+        psi0: ``(S,)`` the bending planes at the start (radians; default 0); ``spatial``
+            only.
+        **keywords: fields of :class:`SmootherOptions` (``landmarks``, ``relinearize``, ...),
+            overriding ``settings``; they read back as attributes (``smoother.lag``).
 
     Example::
 
-        smoother = FixedLagSmoother(robot, lag=1.0)
+        smoother = FixedLagSmoother(robot, lag=1.0, theta0=theta0)
         for f in range(sequence.n_frames):
             now = smoother.update(sequence.frame(f))   # that frame's estimate
+            done = smoother.pop_final()                # frames that left the window
         final = smoother.finish()                      # every frame, smoothed
     """
 
-    settings: EpipolarSmootherOptions
-    _window: EpipolarWindow
+    settings: SmootherOptions
 
     def __init__(self, robot: Robot, lag: float | None = None,
                  options: GraphOptions | None = None, theta0: ArrayLike | None = None,
-                 settings: EpipolarSmootherOptions | None = None, **keywords: Any) -> None:
+                 settings: SmootherOptions | None = None, spatial: bool = False,
+                 psi0: ArrayLike | None = None, **keywords: Any) -> None:
         name = type(self).__name__
         start_angles(name, robot, None)  # the robot first
-        self.settings = s = smoother_settings(EpipolarSmootherOptions, settings, lag, keywords,
-                                              name)
+        self.settings = s = smoother_settings(settings, lag, keywords, name)
+        self.spatial = bool(spatial)
+        if psi0 is not None and not self.spatial:
+            raise ValueError(f"{name}: psi0 is given but spatial is False")
         self.theta0 = start_angles(name, robot, theta0)
+        if self.spatial:
+            self.theta0 = start_bends(robot, self.theta0, psi0)
+        self.start_contradicted = False
+        """Whether the first frame's images contradicted ``theta0`` (a warning said so)."""
         self.robot = robot
-        self.options = GraphOptions() if options is None else options
-        self._window = EpipolarWindow(s, robot.n_segments)
-        self._calibration = OnlineCalibration(robot, s.calibration_sigmas, s.calibrate,
-                                              self._window)
-        self._front = EpipolarFrontEnd(robot, self.options, s, self._window, self._calibration)
-        self._linear = FirstEstimateFactors(s, self._front, self._window)
-        self._block_stamp = 0.0
-        self._renewed: list[int] = []
-        self._anchor_unconstrained = True  # tests turn this off to provoke gtsam's failure
+        self.options = o = GraphOptions() if options is None else options
+        self._window = Window(s.lag, (4 if spatial else 1) * robot.n_segments,
+                              lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold),
+                              present if spatial else None)
+        self._tracks = ProjectionTracks(robot, o, s, self._window, self.spatial)
+        w = self._window
+        self._landmarks = Landmarks(robot, self._tracks.chain, lambda g: (w.thetas[g], w.times[g]),
+                                    o.threshold_px, o.inlier_sigmas, s.lag, s.max_landmarks,
+                                    s.landmark_sigma, s.pose_sigma, self._tracks.dim)
+        self._previous_rows: Rows = {}
+        self._previous_base: FloatArray | None = None
+        self._rng = np.random.default_rng(0)
+        self._live_indices: list[int] = []
+        self._tracked = False  # whether any frame had tracks yet
+        self._reacquiring: Reacquisition | None = None
+        self._still = StillFrames(math.inf if s.still_frames is None else s.still_frames,
+                                  s.still_chi2)
+
+    def __getattr__(self, name: str) -> Any:
+        settings = self.__dict__.get("settings")
+        if settings is not None and name in {f.name for f in fields(settings)}:
+            return getattr(settings, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
-    def rebuilds(self) -> int:
-        """How many first-estimate factors were rebuilt at a moved estimate."""
-        return self._linear.rebuilds
+    def _smoother(self) -> gtsam.FixedLagSmoother:
+        """gtsam's smoother holding the window (tests replace it to provoke failures)."""
+        return self._window.smoother
 
-    # ---------------------------------------------------------------------------- update
+    @_smoother.setter
+    def _smoother(self, smoother: gtsam.FixedLagSmoother) -> None:
+        self._window.smoother = smoother
+
+    @property
+    def n_frames(self) -> int:
+        """Frames received so far (held ones included)."""
+        return self._still.count
+
+    @property
+    def recoveries(self) -> int:
+        """How many times a gtsam failure was caught and recovered from."""
+        return self._window.recoveries
+
+    @property
+    def committed_observations(self) -> int:
+        """Observations committed into the graph so far (each exactly once)."""
+        return self._tracks.committed
+
+    @property
+    def outlier_observations(self) -> int:
+        """Committed observations judged outliers so far."""
+        return self._tracks.outliers
+
+    # ------------------------------------------------------------------------- update
     def update(self, observations: FrameObservations) -> SmootherFrame:
         """Add one frame; returns that frame's estimate (filtered: only past frames seen).
 
@@ -124,228 +167,234 @@ class FixedLagSmoother(StreamingSmoother):
             ValueError: a timestamp not after the previous frame's, or observations of a
                 segment without a camera.
         """
-        window = self._window
-        f = window.count
-        t = window.check_time(f, observations.timestamp)
-        frame = self._front.ingest(f, t, observations)
+        window, still = self._window, self._still
+        f = window.count  # the graph frame it becomes, unless the robot stands still
+        t = check_timestamp(still.count, observations.timestamp, still.last_time)
+        rows = frame_rows(self.robot, still.count, observations, self.options.threshold_px)
+        base = (None if observations.world_T_base is None
+                else np.asarray(observations.world_T_base, dtype=float))
+        if still.hold(rows, base, f, t, window.inside(f - 1)):
+            return still.held(self._frame_estimate(f - 1))
+        t -= still.paused  # the graph's clock stops while the robot stands still
+        if (self._tracked and not self.spatial and window.inside(f - 1)
+                and tracks_returned(rows, self._previous_rows, self._known)):
+            sigmas = self._sigmas(f - 1)
+            warn_blackout(still.count - 1, still.last_time or 0.0, sigmas)
+            self._reacquiring = Reacquisition(self.robot, self.options, window.thetas[f - 1],
+                                              float(np.nanmax(sigmas, initial=math.pi / 6)))
+        self._tracked = self._tracked or bool(rows)
+        if self._reacquiring is not None:
+            if self._reacquiring.due(t, window.lag):
+                self._reacquire(self._reacquiring)
+            else:
+                self._reacquiring.add(f, t, observations)
         previous, window.last_time = window.last_time, t
-        if f % self.settings.marginalise_every == 0:
-            self._block_stamp = t
-        stamp = frame.stamp = self._block_stamp  # gtsam's timestamp of this frame's variables
-        self._renewed = self._keep_previous(f, stamp)
-        # Frames leaving in this update keep their current estimate.
-        self._linear.forget(set(window.retire(stamp)))
-        status = np.full(self.robot.n_segments, "initial" if f == 0 else "ok", dtype="<U24")
-        graph = gtsam.NonlinearFactorGraph()
-        thetas, measured = self.theta0.copy(), []
-        if f > 0:
-            thetas = predict(window.latest(f - 1), window.latest(f - 2), self.robot)
-            measured = self._front.measure(frame, thetas, status)
-            self._linear.add(graph, measured, frame, thetas)
-        self._front.set_positions(frame, thetas)
-        dt = 0.0 if previous is None else t - previous
-        values, stamps = self._new_frame(graph, f, dt, stamp, thetas, unconstrained=not measured)
-        remove = []
-        if self._linear.rebuilding():
-            self._read_window(everything=True)
-            remove = self._linear.rebuild_moved(graph, stamp)
-        fresh = self._linear.take_fresh()
-        self._solve(graph, values, stamps, f, thetas, status, remove)
-        if fresh and self.settings.iterations > 1 and "recovered" not in status:
-            self._iterate(frame, fresh, thetas, status)
-        window.enter(f, t, stamp, status)
-        self._front.keep_keyframe(frame, f in window.thetas)
+        add = Additions()
+        self._make_room(add, f, t, rows)
+        weights = {cam: np.ones(len(ids)) for cam, (ids, _, _) in rows.items()}
+        marks = {cam: self._landmarks.of(cam, ids) for cam, (ids, _, _) in rows.items()}
+        thetas, status, accepted = self._initial_guess(f, rows, marks, base, weights)
+        window.enter(f, t, t, status)
+        window.thetas[f] = thetas
+        self._tracks.bases[f] = base
+        self._observe(add, f, t, rows, marks, weights)
+        self._tracks.live.vouch(f, accepted)
+        self._previous_rows, self._previous_base = rows, base
+        frame_priors(add.graph, f, 0.0 if previous is None else t - previous, thetas,
+                     self.theta0, window, self.robot, self.options, self.settings.loose_sigma,
+                     self.spatial)
+        live = self._tracks.live_factors(add.graph)
+        self._solve(add.graph, f, t, thetas, live, add.values, add.stamps)
         window.count += 1
-        return self._frame_estimate(f, t, status)
+        return still.frame_of(self._frame_estimate(f))
 
-    def _new_frame(self, graph: gtsam.NonlinearFactorGraph, f: int, dt: float, stamp: float,
-                   thetas: FloatArray, unconstrained: bool
-                   ) -> tuple[gtsam.Values, gtsam.FixedLagSmootherKeyTimestampMap]:
-        """The new frame's variables at ``thetas`` and their priors (start, motion ``dt``
-        seconds after the previous frame, limits near them, the anchor of a frame without
-        epipolar factors), the keyframes' renewed timestamps, the calibration at frame 0."""
-        n_seg = self.robot.n_segments
-        o, s = self.options, self.settings
-        values = gtsam.Values()
-        stamps: list[tuple[int, float]] = []
-        keys = [angle_key(f, i, n_seg) for i in range(n_seg)]
-        for g in self._renewed:  # the previous frame stays across a long pause
-            stamps += [(angle_key(g, i, n_seg), stamp) for i in range(n_seg)]
-        for kf in self._front.keyframes:  # keyframes stay: renew their timestamps
-            kf.stamp = self._window.stamps[kf.index] = stamp
-            stamps += [(angle_key(kf.index, i, n_seg), stamp) for i in range(n_seg)]
-        for i, key in enumerate(keys):
-            values.insert(key, np.array([thetas[i]]))
-            stamps.append((key, stamp))
-            theta_max = self.robot.segments[i].theta_max
-            if abs(thetas[i]) > theta_max - s.limit_margin:
-                # Soft limits only where they can act (a Python factor costs time).
-                graph.add(joint_limit_factor(key, theta_max, o.limit_sigma))
-        if f == 0:
-            for i, key in enumerate(keys):
-                graph.add(angle_prior(key, self.theta0[i], o.theta0_sigma))
-            if s.calibrate:
-                self._calibration.add(graph, values)
-        elif o.motion_sigma is not None:
-            self._add_motion(graph, f, keys, dt)
-        stamps += self._calibration.stamps(stamp)  # never marginalised
-        if f > 0 and o.motion_sigma is None and unconstrained and self._anchor_unconstrained:
-            for i, key in enumerate(keys):
-                graph.add(angle_prior(key, thetas[i], s.loose_sigma))
-        return values, key_stamps(stamps)
-
-    def _keep_previous(self, f: int, stamp: float) -> list[int]:
-        """After a pause longer than the lag (or with a lag shorter than a marginalisation
-        block) the previous frame would leave the window just before the new one arrives: it
-        stays instead (its timestamp renewed to ``stamp``), so that the new frame is measured
-        against it and tied to it by the motion prior. Returns the frames renewed."""
+    def _make_room(self, add: Additions, f: int, t: float, rows: Rows) -> None:
+        """Before frame f (at ``t`` seconds) enters: tracks that outlive the window become
+        landmarks, pieces that are due are committed (before their first frames leave the
+        window), and the frames the update marginalises leave with their final estimates."""
         window = self._window
-        if f == 0 or not window.inside(f - 1) or window.stamps[f - 1] >= stamp - window.lag:
-            return []
-        window.stamps[f - 1] = stamp
-        for old in self._front.history:
-            if old.index == f - 1:
-                old.stamp = stamp
-        return [f - 1]
+        leaving = window.leaving(t)
+        first_kept = max(leaving) + 1 if leaving else min(window.stamps, default=f)
+        seen = {c: ids for c, (ids, _, _) in rows.items()}
+        self._landmarks.forget(seen, t)
+        tracks = self._tracks
+        if self.settings.landmarks:
+            promoted = tracks.live.take_continuing(seen, first_kept, self._landmarks.room())
+            for cam, (obs, ids) in promoted.items():
+                first, last = int(obs.frames.min()), int(obs.frames.max())
+                tracks.count(*self._landmarks.promote(add, cam, obs, ids,
+                                                      tracks.span(first, last), t))
+        due = tracks.live.take_due(f, seen, first_kept, f % self.settings.commit_every == 0)
+        for cam, obs in due.items():
+            tracks.commit(add.graph, cam, obs)
+        self._retire(leaving)
+        tracks.live.drop_frames_before(first_kept)
 
-    def _add_motion(self, graph: gtsam.NonlinearFactorGraph, f: int, keys: list[int],
-                    dt: float) -> None:
-        """The random-walk prior from the previous frame, ``dt`` seconds earlier; a prior at its
-        last estimate when it has already left the window (a pause longer than the lag)."""
-        o, n_seg = self.options, self.robot.n_segments
-        if self._window.inside(f - 1):
-            for i, key in enumerate(keys):
-                graph.add(motion_prior(angle_key(f - 1, i, n_seg), key, o.motion_sigma, dt))
-            return
+    def _initial_guess(self, f: int, rows: Rows, marks: Mapping[int, NDArray[np.int64]],
+                       base: FloatArray | None, weights: dict[int, FloatArray]
+                       ) -> tuple[FloatArray, NDArray[np.str_], dict[int, NDArray[np.int64]]]:
+        """The new frame's angles and status, and per camera the tracks the front end accepted
+        (if it ran); ``weights`` get the outlier decisions of its observations of known
+        points."""
+        S, spatial, accepted = self.robot.n_segments, self.spatial, {}
+        if f == 0:
+            return self.theta0.copy(), np.full(S, "initial", dtype="<U24"), accepted
+        known, masks = self._tracks.known_rows(rows, marks, self._landmarks)
         previous = self._window.latest(f - 1)
-        sigma = o.motion_sigma * math.sqrt(max(dt, 1e-9))
-        for i, key in enumerate(keys):
-            graph.add(angle_prior(key, previous[i], sigma))
+        prediction = predict(previous, self._window.latest(f - 2), self.robot, spatial)
+        counts: dict[int, int] = {}
+        for cam, mask in masks:
+            counts[cam] = counts.get(cam, 0) + int(mask.sum())
+        if any(counts.get(cam, 0) < self.settings.front_end_rows for cam in rows):
+            prediction, accepted = front_end_guess(
+                spatial, previous, prediction, self.robot, self._previous_base, base,
+                self._previous_rows, rows, self.options.threshold_px, self._rng)
+        guess = refine(prediction, self.robot, base, known, self.options.inlier_sigmas,
+                       spatial=spatial)
+        for (cam, mask), flags in zip(masks, guess.row_inliers, strict=True):
+            weights[cam][mask] = flags.astype(float)
+        status = np.full(S, "ok" if guess.refined else "predicted", dtype="<U24")
+        return guess.thetas, status, accepted
 
-    def _iterate(self, frame: StoredFrame, fresh: list[Fresh], point: FloatArray,
-                 status: NDArray[np.str_]) -> None:
-        """Re-linearise the new frame's factors at its updated estimate while it moves (see
-        ``iterations``; iSAM2 backend only)."""
-        if not self._linear.incremental:
-            return
-        f = frame.index
-        live = self._linear.live(fresh, point)
-        for _ in range(self.settings.iterations - 1):
-            self._read_window(frames=self._linear.needed(f, live))
-            now = self._window.thetas[f].copy()
-            graph, remove, positions = self._linear.relinearized(frame, live, now)
-            if not positions:
-                return
-            self._solve(graph, gtsam.Values(), key_stamps(), f, now, status, remove)
-            if "recovered" in status:
-                return
-            self._linear.swapped(f, live, positions, now)
+    def _observe(self, add: Additions, f: int, t: float, rows: Rows,
+                 marks: Mapping[int, NDArray[np.int64]],
+                 weights: Mapping[int, FloatArray]) -> None:
+        """The new observations: of landmarks into the graph, of other tracks into their live
+        pieces."""
+        for cam, (ids, xy, whiten) in rows.items():
+            lm = marks[cam] >= 0
+            live = ~lm
+            if live.any():
+                self._tracks.live.add(f, cam, ids[live], xy[live], whiten[live],
+                                      weights[cam][live])
+            if lm.any():
+                self._landmarks.observe(add, f, t, cam, marks[cam][lm], xy[lm],
+                                        weights[cam][lm])
+                self._tracks.count(int(lm.sum()), int(np.sum(weights[cam][lm] == 0.0)))
 
     # -------------------------------------------------------------------------- solve
-    def _solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-               stamps: gtsam.FixedLagSmootherKeyTimestampMap, f: int, thetas: FloatArray,
-               status: NDArray[np.str_], remove: list[int] | None = None) -> None:
-        """``smoother.update`` with recovery from gtsam's indeterminate-system failure."""
-        n_seg = self.robot.n_segments
-        pending = self._linear.take_pending()
+    def _solve(self, graph: gtsam.NonlinearFactorGraph, f: int, t: float,
+               thetas: FloatArray, live: list[LiveFactor], values: gtsam.Values,
+               new_stamps: Mapping[int, float]) -> None:
+        """``smoother.update`` with the new frame at ``thetas`` (a restart on failure)."""
+        values.insert(frame_key(f), thetas)
+        stamps = key_stamps([(frame_key(f), t), *new_stamps.items()])
         try:
-            self._smoother.update(graph, values, stamps, remove or [])
-            self._linear.register(pending)
-        except IndexError as error:
-            # gtsam's marginalisation helper lost track of a variable's clique (known
-            # IncrementalFixedLagSmoother failures): the state cannot be trusted, start afresh.
+            self._smoother.update(graph, values, stamps, self._live_indices)
+        except (RuntimeError, IndexError) as error:
+            warn_restart(f, t, error)
             self._window.recoveries += 1
-            status[:] = "recovered"
-            warn_restart(f, self._window.times.get(f, math.nan), error)
-            self._restart(f, thetas)
-        except RuntimeError:
-            self._window.recoveries += 1
-            status[:] = "recovered"
-            self._linear.active.clear()  # factor indices are no longer trustworthy
-            repair = gtsam.NonlinearFactorGraph()
-            for i in range(n_seg):
-                repair.add(angle_prior(angle_key(f, i, n_seg), thetas[i],
-                                       self.settings.loose_sigma))
-            try:
-                self._smoother.update(repair, gtsam.Values(), key_stamps())
-            except (RuntimeError, IndexError) as error:
-                warn_restart(f, self._window.times.get(f, math.nan), error)
-                self._restart(f, thetas)
+            self._restart(f, t, thetas)
+            return
+        indices = self._smoother.getISAM2Result().getNewFactorsIndices()
+        self._live_indices = [int(indices[pos]) for pos, *_ in live]
+        self._tracks.keep_points(live)
         self._read_window()
 
-    def _restart(self, f: int, thetas: FloatArray) -> None:
-        """A fresh smoother anchored at the last estimates (the window's history is lost)."""
-        n_seg = self.robot.n_segments
-        calibration = None
-        if self.settings.calibrate:
-            try:
-                calibration = self._calibration.current()
-            except (RuntimeError, IndexError):
-                calibration = None  # the broken state cannot say: back to the robot's values
+    def _read_window(self) -> None:
+        """The latest estimates of the frames and landmarks in the window."""
+        estimate = self._smoother.calculateEstimate()
+        for g in self._window.stamps:
+            key = frame_key(g)
+            if estimate.exists(key):
+                self._window.thetas[g] = estimate.atVector(key)
+        self._landmarks.update_points(estimate)
+
+    def _known(self, cam: int, ids: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """Which of a camera's track ids are landmarks or live tracks."""
+        return (self._landmarks.of(cam, ids) >= 0) | (self._tracks.live.piece_ids(cam, ids) >= 0)
+
+    def _reacquire(self, kept: Reacquisition) -> None:
+        """One batch over the frames kept since a blackout; they take its angles and sigmas,
+        and the window restarts at the newest (:mod:`apcc_graph.estimation.blackout`)."""
+        self._reacquiring, window, g = None, self._window, kept.slots[-1]
+        if not window.inside(g):
+            return
+        try:
+            thetas, sigmas = kept.solve()
+        except (RuntimeError, ValueError, IndexError):
+            return  # the window goes on as it was
+        status = np.full(len(thetas[0]), "reacquired", dtype="<U24")
+        for h, th, sd in zip(kept.slots, thetas, sigmas, strict=True):
+            if window.inside(h):
+                window.thetas[h], window.status[h] = th, status
+            elif h in window.final:  # left at a restart, not taken yet
+                window.final[h] = SmootherFrame(h, window.final[h].timestamp, th, sd, status)
+        sigma = np.where(np.isfinite(sigmas[-1]), np.maximum(sigmas[-1], 1e-6), math.pi / 6)
+        self._restart(g, window.stamps[g], thetas[-1], gtsam.noiseModel.Diagonal.Sigmas(sigma),
+                      None, dict(zip(kept.slots, sigmas, strict=True)))
+
+    def _restart(self, f: int, t: float, thetas: FloatArray,
+                 prior: gtsam.noiseModel.Base | None = None, status: str | None = "recovered",
+                 sigmas: Mapping[int, FloatArray] | None = None) -> None:
+        """A new smoother holding only frame f, at ``thetas``, with ``prior`` (default: a sigma
+        of ``options.theta0_sigma``, at least 1 deg); the other frames leave with their last
+        estimates (and ``sigmas``). After a gtsam failure, or after a re-acquisition."""
         self._window.renew()
-        self._linear.active.clear()
         graph = gtsam.NonlinearFactorGraph()
+        S = self.robot.n_segments
+        graph.add(gtsam.PriorFactorVector(frame_key(f), thetas, prior or gtsam.noiseModel.
+                                          Isotropic.Sigma(len(thetas),
+                                                          max(self.options.theta0_sigma,
+                                                              math.radians(1.0)))))
         values = gtsam.Values()
-        t = self._front.history[-1].stamp
-        stamps = []
-        for i in range(n_seg):
-            key = angle_key(f, i, n_seg)
-            values.insert(key, np.array([thetas[i]]))
-            stamps.append((key, t))
-            graph.add(angle_prior(key, thetas[i], self.settings.loose_sigma))
-            graph.add(joint_limit_factor(key, self.robot.segments[i].theta_max,
-                                         self.options.limit_sigma))
-        if self.settings.calibrate:
-            self._calibration.add(graph, values, calibration)
-        self._smoother.update(graph, values, key_stamps(stamps + self._calibration.stamps(t)))
-        # Older frames can no longer be referenced: keep their estimates as final.
-        self._window.leave_all_but(f, thetas)
-        self._front.restart()
+        values.insert(frame_key(f), thetas)
+        self._smoother.update(graph, values, key_stamps([(frame_key(f), t)]))
+        self._window.leave_all_but(f, thetas, sigmas)
+        self._tracks.bases = {f: self._tracks.bases.get(f)}
+        if status is not None:
+            self._window.status[f] = np.full(S, status, dtype="<U24")
+        self._tracks.reset(keep=f)
+        self._live_indices = []
+        self._landmarks.reset()
 
-    def _read_window(self, everything: bool = False, frames: set[int] | None = None) -> None:
-        """Refresh the estimates the next frame needs (the frames it will be paired with and
-        the two it is predicted from), or every frame in the window, or ``frames``."""
+    def _retire(self, leaving: list[int]) -> None:
+        """Record the final estimate of frames that the coming update marginalises."""
+        self._landmarks.retire(leaving)
+        if 0 in leaving and self._window.status[0][0] == "initial":
+            self.start_contradicted = check_start(
+                self.theta0, self.options.theta0_sigma, self._window.thetas[0],
+                lambda: self._smoother.marginalCovariance(frame_key(0)),
+                self._window.last_time or 0.0)
+        for g in sorted(leaving):
+            self._window.leave(g, self._window.thetas[g].copy(), self._sigmas(g))
+            self._tracks.bases.pop(g, None)
+
+    def _sigmas(self, g: int) -> FloatArray:
+        """Frame g's marginal sigmas (spatial: its covariance blocks, see the window)."""
+        nan = np.full(self._window.n_segments, np.nan)
+        if not self.settings.uncertainty:
+            return nan
+        try:
+            cov = self._smoother.marginalCovariance(frame_key(g))
+        except (RuntimeError, IndexError, ValueError):
+            return nan  # not in gtsam's Bayes tree
+        return covariance_blocks(cov) if self.spatial else np.sqrt(np.maximum(np.diag(cov), 0))
+
+    def _frame_estimate(self, f: int) -> SmootherFrame:
         window = self._window
-        f = window.count
-        if frames is not None:
-            wanted = set(frames)
-        elif everything:
-            wanted = set(window.stamps) | {f}
-        else:
-            wanted = ({f, f - 1} | {f + 1 - gap for gap in self.options.gaps}
-                      | {kf.index for kf in self._front.keyframes})
-        by_index = self._front.by_index()
-        for g in window.read(wanted):
-            if g in by_index:
-                self._front.set_positions(by_index[g], window.thetas[g])
-
-    def _frame_estimate(self, f: int, t: float, status: NDArray[np.str_]) -> SmootherFrame:
-        return SmootherFrame(f, t, self._window.thetas[f].copy(), self._window.sigmas(f),
-                             status.copy(), self._calibration.current())
+        return window.present(SmootherFrame(f, window.times[f], window.thetas[f].copy(),
+                                            self._sigmas(f), window.status[f].copy()))
 
     # ------------------------------------------------------------------------- output
-    def refine(self, iterations: int = 1) -> None:
-        """Spend spare time: more Gauss-Newton steps on the current window (no new frame).
-
-        With ``linearization="relinearize"`` this converges to the window's optimum; with
-        first-estimate factors, to the optimum of their linearisation.
-        """
-        for _ in range(int(iterations)):
-            try:
-                self._smoother.update(gtsam.NonlinearFactorGraph(), gtsam.Values(),
-                                      key_stamps())
-            except RuntimeError:
-                self._window.recoveries += 1
-                break
-        self._read_window(everything=True)
+    def pop_final(self) -> list[SmootherFrame]:
+        """The frames that left the window since the last call (with the still frames each
+        stands for), in order, and forget them."""
+        return self._still.expand(self._window.pop_final())
 
     def finish(self) -> list[SmootherFrame]:
-        """Every frame's final estimate, in order (frames still in the window: their current
-        smoothed estimate), except frames already taken by :meth:`pop_final`. The smoother can
-        keep receiving frames afterwards."""
-        self._read_window(everything=True)
-        return self._window.frames(self._window.sigmas, self._calibration.current)
-
-    def calibration(self) -> Mapping[int, tuple[float, float]] | None:
-        """Current ``{segment: (k, delta_max)}`` when self-calibrating, else ``None``."""
-        return self._calibration.as_mapping()
+        """Commit every live track, then return every frame's final estimate in order (frames
+        still in the window: their current smoothed estimate), except frames already taken by
+        :meth:`pop_final`. The smoother can keep receiving frames afterwards (tracks then
+        start new pieces)."""
+        graph = gtsam.NonlinearFactorGraph()
+        for cam, obs in self._tracks.live.take_all().items():
+            self._tracks.commit(graph, cam, obs)
+        if graph.size() and self._window.stamps:
+            try:
+                self._smoother.update(graph, gtsam.Values(), key_stamps(), self._live_indices)
+                self._live_indices = []
+                self._read_window()
+            except (RuntimeError, IndexError):
+                self._window.recoveries += 1
+        return self._still.expand(self._window.frames(self._sigmas), done=False)

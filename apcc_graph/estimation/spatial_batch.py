@@ -54,13 +54,9 @@ def spatial_batch_estimate(
         bends' magnitudes ``>= 0``.
 
     Raises:
-        ValueError: ``options.vision`` is not ``"projection"``; a bad ``theta0``, ``psi0`` or
-            ``initial``.
+        ValueError: a bad ``theta0``, ``psi0`` or ``initial``.
     """
     options = GraphOptions() if options is None else options
-    if options.vision != "projection":
-        raise ValueError(f"vision = {options.vision!r}: a spatial robot is estimated with the "
-                         "projection model only")
     robot = sequence.robot
     bend0 = start_bends(robot, theta0, psi0)
     shape = (sequence.n_frames, 2 * robot.n_segments)

@@ -1,4 +1,4 @@
-"""A robot standing still: frames held out of the projection smoother's graph.
+"""A robot standing still: frames held out of the smoother's graph.
 
 When the robot does not move, no camera sees parallax: a track born during the stillness has
 no depth, and once the whole window is still the smoother's system is close to singular (gtsam

@@ -1,16 +1,14 @@
-"""The window of a fixed-lag smoother, shared by the epipolar and the projection smoother.
+"""The window of the fixed-lag smoother (:mod:`apcc_graph.estimation.smoother`).
 
 - :class:`SmootherFrame`: one frame's estimate as a smoother returns it;
 - :class:`Window`: which frames are inside the window (each with the gtsam timestamp of its
   variables), their latest estimates and statuses, which of them the next update marginalises,
   the final estimates of the frames that left, and gtsam's smoother holding the window (replaced
   when a smoother restarts);
-- :class:`StreamingSmoother`: what both smoothers share on top (frame count, recoveries,
-  :meth:`~StreamingSmoother.pop_final`, their options' fields read as attributes);
 - :func:`new_gtsam_smoother` and :func:`key_stamps`: gtsam's fixed-lag smoother and its map of
   timestamps per key;
 - :func:`start_angles` and :func:`observed_camera`: the checks of a stream's robot, start and
-  observations; :func:`stream_estimate`: a smoother run over a recorded sequence.
+  observations.
 
 A frame's final estimate (and marginal sigma) is the one of the last update in which it was
 inside the window.
@@ -20,22 +18,16 @@ from __future__ import annotations
 
 import math
 import warnings
-from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, fields
-from typing import Any
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from tqdm import tqdm
 
-from apcc_graph.estimation.result import Estimate
-from apcc_graph.estimation.smoother_options import BACKENDS, SmootherOptions
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.robot import Robot
-from apcc_graph.model.sequence import FrameObservations, Sequence
 
 
 class RestartWarning(UserWarning):
@@ -63,14 +55,11 @@ class SmootherFrame:
         timestamp: seconds.
         thetas: ``(S,)`` angles (radians).
         sigmas: ``(S,)`` marginal standard deviations (radians; NaN without uncertainty).
-        status: ``(S,)`` per segment: ``"ok"`` (measured), ``"no-tracks"``, ``"no-motion"``,
-            ``"no-consensus"``, ``"no-camera"`` (the prior carries it), ``"initial"`` (first
-            frame), ``"recovered"`` (after a gtsam failure); the projection smoother also
-            ``"predicted"`` (no known point seen: the prediction stands), ``"reacquired"``
-            (re-acquired by a batch after a blackout) and ``"still"`` (the
-            robot stood still: the frame takes the estimate of the last one that moved;
-            :mod:`apcc_graph.estimation.stillness`).
-        calibration: ``(S, 2)`` current ``k`` and ``delta_max`` (radians) when self-calibrating.
+        status: ``(S,)`` per segment: ``"ok"`` (measured), ``"initial"`` (first frame),
+            ``"predicted"`` (no known point seen: the prediction stands), ``"recovered"``
+            (after a gtsam failure), ``"reacquired"`` (re-acquired by a batch after a
+            blackout) or ``"still"`` (the robot stood still: the frame takes the estimate of
+            the last one that moved; :mod:`apcc_graph.estimation.stillness`).
         psis, psi_sigmas: for a spatial robot, ``(S,)`` bending planes and their standard
             deviations (radians; ``thetas`` are then the bends' magnitudes, as in
             :class:`~apcc_graph.estimation.result.Estimate`); ``None`` otherwise.
@@ -81,22 +70,15 @@ class SmootherFrame:
     thetas: FloatArray
     sigmas: FloatArray
     status: NDArray[np.str_]
-    calibration: FloatArray | None = None
     psis: FloatArray | None = None
     psi_sigmas: FloatArray | None = None
 
 
-def new_gtsam_smoother(lag: float, relinearize_threshold: float, relinearize_skip: int = 1,
-                       backend: str = "incremental") -> gtsam.FixedLagSmoother:
-    """gtsam's fixed-lag smoother over ``lag`` seconds: iSAM2 (``"incremental"``) or
-    Levenberg-Marquardt over the whole window (``"batch"``)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"backend = {backend!r}: expected one of {BACKENDS}")
-    if backend == "batch":
-        return gtsam.BatchFixedLagSmoother(lag)
+def new_gtsam_smoother(lag: float, relinearize_threshold: float) -> gtsam.FixedLagSmoother:
+    """gtsam's iSAM2 fixed-lag smoother over ``lag`` seconds."""
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(relinearize_threshold)
-    params.relinearizeSkip = relinearize_skip
+    params.relinearizeSkip = 1
     params.findUnusedFactorSlots = True
     return gtsam.IncrementalFixedLagSmoother(lag, params)
 
@@ -226,71 +208,14 @@ class Window:
         self.final.clear()
         return out
 
-    def frames(self, sigmas: Callable[[int], FloatArray],
-               calibration: Callable[[], FloatArray | None] = lambda: None
-               ) -> list[SmootherFrame]:
+    def frames(self, sigmas: Callable[[int], FloatArray]) -> list[SmootherFrame]:
         """Every frame's final estimate in order: frames inside the window with their current
-        estimate, ``sigmas(frame)`` and ``calibration()``."""
+        estimate and ``sigmas(frame)``."""
         out = dict(self.final)
         for g in self.stamps:
             out[g] = SmootherFrame(g, self.times[g], self.thetas[g].copy(), sigmas(g),
-                                   self.status[g].copy(), calibration())
+                                   self.status[g].copy())
         return [self.present(out[g]) for g in sorted(out)]
-
-
-class StreamingSmoother(ABC):
-    """What both fixed-lag smoothers share: their :class:`Window`, the frame count, and the
-    fields of their options record (``settings``) read as attributes (``smoother.lag``).
-
-    Subclasses set ``settings`` and ``_window`` and define ``update`` and ``finish``.
-    """
-
-    settings: SmootherOptions
-    _window: Window
-
-    def __getattr__(self, name: str) -> Any:
-        settings = self.__dict__.get("settings")
-        if settings is not None and name in {f.name for f in fields(settings)}:
-            return getattr(settings, name)
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
-
-    @property
-    def _smoother(self) -> gtsam.FixedLagSmoother:
-        """gtsam's smoother holding the window (tests replace it to provoke failures)."""
-        return self._window.smoother
-
-    @_smoother.setter
-    def _smoother(self, smoother: gtsam.FixedLagSmoother) -> None:
-        self._window.smoother = smoother
-
-    @property
-    def n_frames(self) -> int:
-        """Frames received so far."""
-        return self._window.count
-
-    @property
-    def recoveries(self) -> int:
-        """How many times a gtsam failure was caught and recovered from."""
-        return self._window.recoveries
-
-    def pop_final(self) -> list[SmootherFrame]:
-        """The frames that left the window since the last call, in order, and forget them.
-
-        For long or endless streams: memory then stays bounded by the window.
-        """
-        return self._window.pop_final()
-
-    @abstractmethod
-    def update(self, observations: FrameObservations) -> SmootherFrame:
-        """Add one frame; returns that frame's estimate (only past frames seen)."""
-
-    @abstractmethod
-    def finish(self) -> list[SmootherFrame]:
-        """Every frame's final estimate, in order (frames still in the window with their
-        current estimate)."""
-
-    def __iter__(self) -> Iterator[SmootherFrame]:
-        return iter(self.finish())
 
 
 def start_angles(owner: str, robot: Robot, theta0: ArrayLike | None) -> FloatArray:
@@ -308,26 +233,3 @@ def observed_camera(robot: Robot, frame: int, cam: int) -> TipCamera:
         raise ValueError(f"frame {frame}: observations of camera {cam}, but segment {cam} "
                          f"has no camera (cameras ride on {robot.camera_segments})")
     return camera
-
-
-def stream_estimate(smoother: StreamingSmoother, sequence: Sequence, progress: bool = False
-                    ) -> Estimate:
-    """Feed a recorded sequence to ``smoother`` frame by frame; each frame's final estimate.
-
-    Ground-truth columns are never read. The estimate's ``method`` is ``"smoother"`` and its
-    ``inliers`` are 0 (the smoothers weigh each observation instead of counting inliers).
-    """
-    for f in tqdm(range(sequence.n_frames), desc="smoother", disable=not progress):
-        smoother.update(sequence.frame(f))
-    frames = smoother.finish()
-    n_seg = sequence.n_segments
-    spatial = bool(frames) and frames[0].psis is not None
-    return Estimate(
-        method="smoother", robot=sequence.robot, timestamps=sequence.timestamps.copy(),
-        thetas=np.array([fr.thetas for fr in frames]),
-        sigmas=np.array([fr.sigmas for fr in frames]),
-        status=np.array([fr.status for fr in frames], dtype="<U24"),
-        inliers=np.zeros((sequence.n_frames, n_seg), dtype=np.int64),
-        world_T_base=sequence.world_T_base,
-        psis=np.array([fr.psis for fr in frames]) if spatial else None,
-        psi_sigmas=np.array([fr.psi_sigmas for fr in frames]) if spatial else None)
