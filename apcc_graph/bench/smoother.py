@@ -283,7 +283,7 @@ def _lag_rows(r: SmootherBenchmark, cases: list[str]) -> list[str]:
     lagged = [run for run in r.runs if run.lag_ratio is not None]
     if not lagged:
         return []
-    out = ["", f"smoothers against the bound of a {LAG:g} s fixed lag (frames sampled every "
+    out = ["", f"the smoother against the bound of a {LAG:g} s fixed lag (frames sampled every "
            f"{LAG_STEP}; no estimate of frame f may use frames after f + lag): RMS / lag "
            "bound (median, worst seed), worst window"]
     for case in cases:
