@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from apcc_graph.bench.smoother import NOISE_PX, ROBOT_FILE, THETA0_SIGMA, _simulate
+from apcc_graph.bench.smoother import NOISE_PX, ROBOT_FILE, THETA0_SIGMA, room_simulation
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.io.robot_file import load_robot
@@ -82,7 +82,7 @@ def run_self_calibration_benchmark(frames: int = 600, seeds: SequenceOf[int] = (
     wrong = wrong_models(robot, dk, dd)
     runs = []
     for seed in tqdm(seeds, desc="selfcal", disable=not progress):
-        sim = _simulate(robot, frames, outliers, seed)
+        sim = room_simulation(robot, frames, outliers, seed)
         seq = sim.sequence
         assert seq.thetas is not None
         theta0 = seq.thetas[0]

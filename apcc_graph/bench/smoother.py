@@ -112,7 +112,8 @@ def resident_set_size() -> float:
         return float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
 
 
-def _simulate(robot: Robot, frames: int, outliers: float, seed: int) -> Simulation:
+def room_simulation(robot: Robot, frames: int, outliers: float, seed: int) -> Simulation:
+    """The benchmark's room-scene sequence (1 px, 30 fps, 4000 points) of ``robot``."""
     return simulate(robot, frames, noise_px=NOISE_PX, outlier_fraction=outliers, seed=seed,
                     fps=FPS, scene="room", n_points=N_POINTS)
 
@@ -179,7 +180,7 @@ def _accuracy(robot: Robot, frames: int, seeds: SequenceOf[int], outliers: Seque
     for rate in outliers:
         case = f"{rate:.0%} outliers"
         for seed in seeds:
-            sim = _simulate(robot, frames, rate, seed)
+            sim = room_simulation(robot, frames, rate, seed)
             seq = sim.sequence
             assert seq.thetas is not None
             tracks.append(np.mean([len(seq.tracks[c]) / frames for c in seq.tracks]))
@@ -197,7 +198,7 @@ def _drift(robot: Robot, frames: int, seed: int, progress: bool
            ) -> tuple[float, float, float, float]:
     """The smoother over a long run: RMS over frames 100-400 and the last 300
     (radians), and the median and 95th percentile of its update time (seconds)."""
-    seq = _simulate(robot, frames, 0.1, seed).sequence
+    seq = room_simulation(robot, frames, 0.1, seed).sequence
     assert seq.thetas is not None
     sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
     thetas, _, times = _stream(sm, seq, progress, "long run")
@@ -209,7 +210,7 @@ def _drift(robot: Robot, frames: int, seed: int, progress: bool
 def _memory(robot: Robot, frames: int, seed: int, progress: bool) -> tuple[float, float]:
     """Resident set size (bytes) after 1,000 and after ``frames`` frames of a stream whose
     finished frames are taken out, as a streaming user would."""
-    seq = _simulate(robot, frames, 0.1, seed).sequence
+    seq = room_simulation(robot, frames, 0.1, seed).sequence
     assert seq.thetas is not None
     sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
     rss_small = float("nan")

@@ -29,7 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from apcc_graph.bench import ROBOT_FILE
-from apcc_graph.bench.smoother import LAG, THETA0_SIGMA, _simulate
+from apcc_graph.bench.smoother import LAG, THETA0_SIGMA, room_simulation
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.io.robot_file import load_robot
@@ -100,7 +100,7 @@ def run_young_tracks_benchmark(frames: int = 300, seeds: SequenceOf[int] = (0, 1
         n: ([], [], 0.0) for n in live_rows}
     shares = []
     for seed in seeds:
-        sequence = _simulate(robot, frames, outliers, seed).sequence
+        sequence = room_simulation(robot, frames, outliers, seed).sequence
         assert sequence.thetas is not None
         shares.append(young_share(sequence))
         for n in live_rows:
