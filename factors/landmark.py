@@ -66,13 +66,13 @@ def _vee(M: FloatArray) -> FloatArray:
 def camera_pose_residual(X: gtsam.Pose3, thetas: FloatArray, chain: CameraChain, frame: int,
                          jacobians: bool = True
                          ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
-    """``r = Logmap(X^-1 T_cam(theta))`` and its Jacobians in the camera's angles ``(6, n)``
-    (``n = chain.n_parameters``: bending vectors for a spatial chain) and in ``X`` ``(6, 6)``
-    (see the module docstring).
+    """``r = Logmap(X^-1 T_cam(theta))`` and its Jacobians in the camera's components of the
+    frame vector ``(6, n)`` (``n = chain.n_parameters``) and in ``X`` ``(6, 6)`` (see the module
+    docstring).
 
     Args:
         X: the camera-pose variable's value.
-        thetas: ``(S,)`` the frame's angles (radians).
+        thetas: the frame's vector (radians).
         chain: the camera's chain (its base poses cover ``frame``).
         frame: the frame.
     """
@@ -98,8 +98,8 @@ def camera_pose_factor(frame: int, camera: int, chain: CameraChain, n_segments: 
         frame, camera: which pose (:func:`camera_pose_key`) and angles
             (:func:`~apcc_graph.factors.projection.frame_key`).
         chain: the camera's chain (its base poses cover ``frame``).
-        n_segments: the dimension of the frame's vector (S; 2 S for a spatial chain, whose
-            camera depends on its segments' bending vectors).
+        n_segments: the dimension of the frame's vector (the robot's
+            :attr:`~apcc_graph.model.parameterisation.Bending.dim`).
         sigma: the tie's standard deviation (radians and metres alike): small, a constraint.
     """
     theta_key, pose_key = frame_key(frame), camera_pose_key(frame, camera)

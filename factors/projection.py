@@ -87,8 +87,9 @@ class ProjectionFactor:
     Args:
         obs: the tracks (rows of a contiguous range of frames).
         chain: the camera's chain.
-        n_segments: the dimension of each frame's vector: S angles, or 2 S bending-vector
-            components for a spatial chain.
+        n_segments: the dimension of each frame's vector (the robot's
+            :attr:`~apcc_graph.model.parameterisation.Bending.dim`: S angles in fixed planes,
+            or 2 S bending-vector components).
         weights: ``(N,)`` row weights; the array is used in place, so an estimator can
             update the robust decisions between solves.
         calibrate: also depend on the ``(k, delta_max)`` variables (:func:`calibration_key`)
@@ -108,18 +109,16 @@ class ProjectionFactor:
         self.first = int(obs.frames.min())
         self.last = int(obs.frames.max())
         self.frames = np.arange(self.first, self.last + 1)
-        if calibrate and chain.spatial:
-            raise ValueError("self-calibration of a spatial robot is not supported")
         self.n = chain.n_parameters  # columns of a frame's vector this camera depends on
         self.calibrate = bool(calibrate)
         self.frame_keys = [frame_key(int(f)) for f in self.frames]
-        self.calibration_keys = ([calibration_key(j) for j in range(self.n)]
+        self.calibration_keys = ([calibration_key(j) for j in range(len(chain.segments))]
                                  if self.calibrate else [])
         self.keys = self.frame_keys + self.calibration_keys
         self.points: FloatArray | None = None
         self.norms: FloatArray | None = None  # residual norms of the last evaluation
         self.point_iterations = 10  # see reduced_system; 1 suits iSAM2's re-linearisations
-        self.dim = len(self.frames) * self.n + (2 * self.n if self.calibrate else 0) + 1
+        self.dim = (len(self.frames) * self.n + 2 * len(self.calibration_keys) + 1)
 
     def thetas(self, values: gtsam.Values) -> FloatArray:
         """``(F', S)`` the chunk's angles in ``values``."""

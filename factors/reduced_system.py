@@ -17,8 +17,9 @@ points, and the information the Cramer-Rao bound of the angles counts. Row weigh
 (robust decisions, 0 for an outlier) are held fixed while the system is built; the estimators
 update them between solves (graduated non-convexity).
 
-Self-calibration: with ``calibration``, the system also has the ``2 n`` columns of the chain's
-segments' ``(k, delta_max)``, after the frames'.
+Self-calibration: with ``calibration``, the system also has the ``2 m`` columns of the chain's
+``m`` segments' ``(k, delta_max)``, after the frames' (``n`` columns per frame: ``m`` angles in
+fixed planes, or ``2 m`` bending-vector components).
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def _row_poses(chain: CameraChain, thetas: FloatArray, first: int, frames: NDArr
                ) -> tuple[FloatArray, FloatArray, FloatArray | None, FloatArray | None]:
     """Row-last camera orientation ``(3, 3, N)``, position ``(3, N)``, pose derivatives
     ``(4, 4, n, N)`` of each row's frame and, with ``calibration``, their derivatives in
-    ``(k_0, delta_0, k_1, ...)``, ``(4, 4, 2 n, N)``."""
+    ``(k_0, delta_0, k_1, ...)``, ``(4, 4, 2 m, N)`` for the chain's ``m`` segments."""
     out = chain.poses(thetas, first, derivatives, calibration)
     poses, d_poses = out[0], out[1]
     lf = frames - first
@@ -69,8 +70,8 @@ def _row_poses(chain: CameraChain, thetas: FloatArray, first: int, frames: NDArr
     dC = None
     if calibration:
         d_cal = out[2]
-        F, n = d_cal.shape[:2]
-        dC = np.moveaxis(d_cal.reshape(F, 2 * n, 4, 4), (0, 1), (-1, -2))[..., lf]
+        F, m = d_cal.shape[:2]
+        dC = np.moveaxis(d_cal.reshape(F, 2 * m, 4, 4), (0, 1), (-1, -2))[..., lf]
     return np.ascontiguousarray(P[:3, :3]), np.ascontiguousarray(P[:3, 3]), dP, dC
 
 
@@ -120,8 +121,8 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
             computed).
         refine_points: triangulate (default); ``False`` uses ``points`` as they are (the
             Fisher information at known points, for the Cramer-Rao bound).
-        calibration: add the ``2 n`` columns of the chain's segments' ``(k, delta_max)``
-            after the frames' (``D = frames x n + 2 n``).
+        calibration: add the ``2 m`` columns of the chain's ``m`` segments' ``(k,
+            delta_max)`` after the frames' (``D = frames x n + 2 m``).
         point_iterations: most triangulation iterations from ``points`` (from scratch: 10).
             With one step from a previous solution the points are not exactly optimal; the
             system is then the joint Gauss-Newton system in (angles, points) with the points
@@ -149,7 +150,7 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
     Jc = None
     if calibration:
         assert dC is not None
-        Jc = _pose_jacobian(WA, Rb, dC, proj.d)  # (2, 2n, N)
+        Jc = _pose_jacobian(WA, Rb, dC, proj.d)  # (2, 2m, N)
     lf = obs.frames - first
     H, g = _normal_equations(Jt, r, lf, len(thetas), Jc)
     M, y = _point_elimination(obs, Jt, Jp, r, lf, len(H), Jc)
@@ -174,7 +175,7 @@ def _normal_equations(Jt: FloatArray, r: FloatArray, lf: NDArray[np.int64], n_fr
     Hk = np.einsum("ain,ajn->ijn", Jt, Jt).reshape(n * n, -1)
     gk = np.einsum("ain,an->in", Jt, r)
     D0 = n_frames * n
-    D = D0 + (0 if Jc is None else 2 * n)
+    D = D0 + (0 if Jc is None else Jc.shape[1])
     H = np.zeros((D, D))
     diag = np.arange(n_frames) * n
     for i in range(n):
@@ -183,9 +184,9 @@ def _normal_equations(Jt: FloatArray, r: FloatArray, lf: NDArray[np.int64], n_fr
     g = np.zeros(D)
     g[:D0] = np.stack([np.bincount(lf, gk[c], n_frames) for c in range(n)], axis=1).ravel()
     if Jc is not None:
-        cross = np.einsum("ain,acn->icn", Jt, Jc)  # (n, 2n, N)
+        cross = np.einsum("ain,acn->icn", Jt, Jc)  # (n, 2m, N)
         for i in range(n):
-            for c in range(2 * n):
+            for c in range(Jc.shape[1]):
                 H[diag + i, D0 + c] = np.bincount(lf, cross[i, c], n_frames)
         H[D0:, :D0] = H[:D0, D0:].T
         H[D0:, D0:] = np.einsum("acn,adn->cd", Jc, Jc)
@@ -218,5 +219,6 @@ def _point_elimination(obs: TrackObservations, Jt: FloatArray, Jp: FloatArray, r
     M[rows, cols] = V
     if Jc is not None:
         Vc = np.einsum("can,ban->cbn", np.einsum("acn,ajn->cjn", Jc, Jp), L_inv_rows)
-        M[D - 2 * n:] = np.moveaxis(segment_sum(Vc, obs.starts), -1, 1).reshape(2 * n, -1)
+        C = Jc.shape[1]
+        M[D - C:] = np.moveaxis(segment_sum(Vc, obs.starts), -1, 1).reshape(C, -1)
     return M, y

@@ -16,6 +16,7 @@ from apcc_graph.model.bending import (
     polar,
 )
 from apcc_graph.model.kinematics import apcc_transform
+from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 
 
@@ -84,7 +85,8 @@ def test_derivatives_at_and_through_straight() -> None:
 def test_spatial_camera_poses_and_their_derivatives() -> None:
     """The chain in bending vectors: the poses of (theta, psi), and derivatives that match
     central differences column by column (u_j at 2 j, v_j at 2 j + 1)."""
-    from apcc_graph.factors.camera_chain import CameraChain, camera_poses, spatial_camera_poses
+    from apcc_graph.factors.camera_chain import CameraChain, camera_poses
+    from apcc_graph.model.parameterisation import Bending
 
     segs = tuple(Segment(length=0.3, k=k, delta_max=math.radians(d), theta_max=math.radians(60))
                  for k, d in ((0.22, 6.0), (0.24, 3.0), (0.25, 0.0)))
@@ -96,18 +98,19 @@ def test_spatial_camera_poses_and_their_derivatives() -> None:
     bends = np.stack([u, v], axis=-1).reshape(5, 6)
     mount = np.eye(4)
     mount[:3, 3] = (0.01, 0.0, 0.02)
-    poses, d_poses = spatial_camera_poses(bends, segs, mount)
-    polar_poses, _ = camera_poses(thetas, segs, mount, psis=psis)
+    free = Bending.free(segs)
+    poses, d_poses = camera_poses(bends, free, mount)
+    polar_poses = Robot(segs, [None] * 3).forward(thetas, psis)[:, 2] @ mount
     np.testing.assert_allclose(poses, polar_poses, atol=1e-12)
     h = 1e-6
     for c in range(6):
         step = np.zeros(6)
         step[c] = h
-        up = spatial_camera_poses(bends + step, segs, mount, derivatives=False)[0]
-        down = spatial_camera_poses(bends - step, segs, mount, derivatives=False)[0]
+        up = camera_poses(bends + step, free, mount, derivatives=False)[0]
+        down = camera_poses(bends - step, free, mount, derivatives=False)[0]
         np.testing.assert_allclose(d_poses[:, c], (up - down) / (2 * h), atol=1e-7)
-    chain = CameraChain(segs[:2], mount, None, None, spatial=True)
+    chain = CameraChain(free.head(2), mount, None)
     assert chain.n_parameters == 4
     short, d_short = chain.poses(bends, 0, True)
-    np.testing.assert_allclose(short, spatial_camera_poses(bends[:, :4], segs[:2], mount)[0])
+    np.testing.assert_allclose(short, camera_poses(bends[:, :4], free.head(2), mount)[0])
     assert d_short.shape == (5, 4, 4, 4)

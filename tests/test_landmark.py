@@ -22,6 +22,7 @@ from apcc_graph.factors.landmark import (
     observation_factors,
 )
 from apcc_graph.factors.projection import frame_key
+from apcc_graph.model.parameterisation import Bending
 
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
             Segment(0.3, k=0.3, delta_max=-0.05, theta_max=1.0),
@@ -30,7 +31,7 @@ SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
 
 def _chain(rng: np.random.Generator, n: int, frames: int = 5) -> CameraChain:
     bases = np.stack([random_pose(rng, 0.3, 0.2) for _ in range(frames)])
-    return CameraChain(SEGMENTS[:n], random_pose(rng, 0.3, 0.05), bases, None)
+    return CameraChain(Bending.fixed(SEGMENTS[:n]), random_pose(rng, 0.3, 0.05), bases)
 
 
 @settings(max_examples=30, deadline=None)

@@ -23,6 +23,7 @@ from apcc_graph.factors.projection import (
     frame_key,
 )
 from apcc_graph.factors.reduced_system import reduced_system
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.simulation.simulator import simulate
 
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
@@ -39,17 +40,20 @@ def _with(segments, j: int, dk: float, dd: float) -> tuple[Segment, ...]:
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), spatial=st.booleans(), cam=st.integers(0, 2))
-def test_calibration_pose_derivatives_match_central_differences(seed: int, spatial: bool,
+@given(seed=st.integers(0, 2**31 - 1), free=st.booleans(), cam=st.integers(0, 2))
+def test_calibration_pose_derivatives_match_central_differences(seed: int, free: bool,
                                                                 cam: int) -> None:
+    """In fixed planes and in bending vectors alike (k and delta_max move at fixed b)."""
     rng = np.random.default_rng(seed)
     n, n_frames = cam + 1, 3
     mount = random_pose(rng, 0.4, 0.05)
     thetas = rng.uniform(-1.0, 1.0, (n_frames, n))
-    psis = rng.uniform(-math.pi, math.pi, (n_frames, n)) if spatial else None
-    poses, d_poses, d_cal = camera_poses(thetas, SEGMENTS[:n], mount, None, psis,
-                                         calibration=True)
-    plain, d_plain = camera_poses(thetas, SEGMENTS[:n], mount, None, psis)
+    bending = Bending.free(SEGMENTS[:n]) if free else Bending.fixed(
+        SEGMENTS[:n], rng.uniform(-math.pi, math.pi, n))
+    if free:
+        thetas = bending.vector(thetas, rng.uniform(-math.pi, math.pi, (n_frames, n)))
+    poses, d_poses, d_cal = camera_poses(thetas, bending, mount, None, calibration=True)
+    plain, d_plain = camera_poses(thetas, bending, mount, None)
     np.testing.assert_array_equal(poses, plain)
     np.testing.assert_array_equal(d_poses, d_plain)
     assert d_cal.shape == (n_frames, n, 2, 4, 4)
@@ -57,10 +61,10 @@ def test_calibration_pose_derivatives_match_central_differences(seed: int, spati
     h = 1e-6
     for j in range(n):
         for i, (dk, dd) in enumerate(((h, 0.0), (0.0, h))):
-            plus = camera_poses(thetas, _with(SEGMENTS[:n], j, dk, dd), mount, None, psis,
-                                False)[0]
-            minus = camera_poses(thetas, _with(SEGMENTS[:n], j, -dk, -dd), mount, None, psis,
-                                 False)[0]
+            plus = camera_poses(thetas, bending.with_segments(_with(SEGMENTS[:n], j, dk, dd)),
+                                mount, None, False)[0]
+            minus = camera_poses(thetas, bending.with_segments(_with(SEGMENTS[:n], j, -dk, -dd)),
+                                 mount, None, False)[0]
             np.testing.assert_allclose(d_cal[:, j, i], (plus - minus) / (2 * h), atol=1e-8)
 
 
@@ -72,18 +76,19 @@ def lens_robot() -> Robot:
     return Robot(SEGMENTS, [None, cam, cam])
 
 
-def _setup(robot: Robot, cam: int, seed: int):
+def _setup(robot: Robot, cam: int, seed: int, spatial: bool = False):
     sim = simulate(robot, 10, noise_px=1.0, seed=seed, scene="room", n_points=400,
-                   moving_base=True, fps=FAST)
+                   moving_base=True, fps=FAST, spatial=spatial)
     seq = sim.sequence
     camera = robot.cameras[cam]
     tracks = seq.tracks[cam]
     xy = camera.normalized(tracks.uv)
     obs = build_observations(cam, tracks.frames, tracks.track_ids, xy,
                              camera.pixel_jacobian(xy), None)
-    chain = CameraChain(tuple(robot.segments[:cam + 1]), camera.tip_T_cam, seq.world_T_base,
-                        seq.psis)
-    thetas = seq.thetas + np.random.default_rng(seed).normal(0.0, 0.003, seq.thetas.shape)
+    bending = Bending.free(robot.segments) if spatial else Bending.fixed(robot.segments)
+    chain = CameraChain(bending.head(cam + 1), camera.tip_T_cam, seq.world_T_base)
+    truth = bending.vector(seq.thetas, seq.psis)
+    thetas = truth + np.random.default_rng(seed).normal(0.0, 0.003, truth.shape)
     return seq, obs, chain, thetas
 
 
@@ -93,16 +98,17 @@ def _chain_with(chain: CameraChain, cal: np.ndarray) -> CameraChain:
                                                      strict=True)])
 
 
-@pytest.mark.parametrize("cam", [1, 2])
+@pytest.mark.parametrize(("cam", "spatial"), [(1, False), (2, False), (2, True)])
 def test_calibration_gradient_is_half_the_derivative_of_the_retriangulated_cost(
-        lens_robot: Robot, cam: int) -> None:
+        lens_robot: Robot, cam: int, spatial: bool) -> None:
     """g's calibration entries against central differences of the cost minimised over the
-    points; the frame block of H and g is that of the system without calibration."""
-    seq, obs, chain, thetas = _setup(lens_robot, cam, 30 + cam)
+    points; the frame block of H and g is that of the system without calibration. In bending
+    vectors too (``spatial``: two columns per segment, the calibration's still two)."""
+    seq, obs, chain, thetas = _setup(lens_robot, cam, 30 + cam, spatial)
     w = np.ones(len(obs))
     out = reduced_system(obs, chain, thetas, 0, w, calibration=True)
     plain = reduced_system(obs, chain, thetas, 0, w)
-    n, D0 = cam + 1, len(thetas) * (cam + 1)
+    n, D0 = cam + 1, len(thetas) * chain.n_parameters
     assert out.H.shape == (D0 + 2 * n,) * 2
     np.testing.assert_allclose(out.H[:D0, :D0], plain.H, rtol=0, atol=1e-9 * np.abs(plain.H).max())
     np.testing.assert_allclose(out.g[:D0], plain.g, rtol=0, atol=1e-9 * np.abs(plain.g).max())
@@ -134,8 +140,8 @@ def test_calibration_information_is_the_gauss_newton_curvature(lens_robot: Robot
     xy = camera.normalized(tracks.uv)
     obs = build_observations(cam, tracks.frames, tracks.track_ids, xy,
                              camera.pixel_jacobian(xy), None)
-    chain = CameraChain(tuple(lens_robot.segments), camera.tip_T_cam, seq.world_T_base,
-                        seq.psis)
+    chain = CameraChain(Bending.fixed(lens_robot.segments), camera.tip_T_cam,
+                        seq.world_T_base)
     w = np.ones(len(obs))
     out = reduced_system(obs, chain, seq.thetas, 0, w, calibration=True)
     assert out.cost < 1e-12

@@ -27,6 +27,7 @@ from apcc_graph.factors.reduced_system import reduced_system
 from apcc_graph.factors.track_points import MIN_DEPTH, TrackObservations
 from apcc_graph.factors.triangulation import triangulate
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.simulation.simulator import simulate
 
 ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
@@ -58,61 +59,89 @@ def camera_observations(robot: Robot, sequence, cam: int, noise_px: float = 1.0,
                               camera.pixel_jacobian(xy) / noise_px, keep)
 
 
+def bending_of(robot: Robot, sequence) -> Bending:
+    """The parameterisation a sequence's truth is in: free planes if it bends in 3-D."""
+    return (Bending.fixed(robot.segments) if sequence.psis is None
+            else Bending.free(robot.segments))
+
+
+def truth_of(robot: Robot, sequence) -> np.ndarray:
+    """``(F, dim)`` the sequence's true frame vectors."""
+    return bending_of(robot, sequence).vector(sequence.thetas, sequence.psis)
+
+
 def camera_chain(robot: Robot, sequence, cam: int) -> CameraChain:
-    return CameraChain(tuple(robot.segments[:cam + 1]), robot.cameras[cam].tip_T_cam,
-                       sequence.world_T_base, sequence.psis)
+    return CameraChain(bending_of(robot, sequence).head(cam + 1), robot.cameras[cam].tip_T_cam,
+                       sequence.world_T_base)
+
+
+def parameterised(kind: str, rng: np.random.Generator, n_frames: int, n: int
+                  ) -> tuple[Bending, np.ndarray, np.ndarray, np.ndarray | None]:
+    """A parameterisation of ``SEGMENTS[:n]`` (``"planar"``: fixed planes at 0, ``"fixed"``:
+    random fixed planes, ``"free"``: bending vectors), random frame vectors in it, and the same
+    bends as ``(thetas, psis)`` for the robot's own kinematics."""
+    thetas = rng.uniform(-1.0, 1.0, (n_frames, n))
+    if kind == "planar":
+        return Bending.fixed(SEGMENTS[:n]), thetas, thetas, None
+    if kind == "fixed":
+        planes = rng.uniform(-math.pi, math.pi, n)
+        return (Bending.fixed(SEGMENTS[:n], planes), thetas, thetas,
+                np.broadcast_to(planes, thetas.shape))
+    psis = rng.uniform(-math.pi, math.pi, (n_frames, n))
+    bending = Bending.free(SEGMENTS[:n])
+    return bending, bending.vector(thetas, psis), thetas, psis
 
 
 # ------------------------------------------------------------------------------ camera_poses
 @pytest.mark.parametrize("base", ["none", "fixed", "moving"])
-@pytest.mark.parametrize("spatial", [False, True])
-def test_camera_poses_equal_the_robots(base: str, spatial: bool) -> None:
+@pytest.mark.parametrize("kind", ["planar", "fixed", "free"])
+def test_camera_poses_equal_the_robots(base: str, kind: str) -> None:
     rng = np.random.default_rng(1)
     mounts = [random_pose(rng, 0.3, 0.05) for _ in range(3)]
     robot = Robot(SEGMENTS, [TipCamera(500.0, 500.0, 320.0, 240.0, 640, 480, tip_T_cam=m)
                              for m in mounts])
     n_frames = 9
-    thetas = rng.uniform(-1.0, 1.0, (n_frames, 3))
-    psis = rng.uniform(-math.pi, math.pi, (n_frames, 3)) if spatial else None
+    bending, x, thetas, psis = parameterised(kind, rng, n_frames, 3)
     world_T_base = {"none": None, "fixed": random_pose(rng, 0.5, 0.3),
                     "moving": random_bases(rng, n_frames)}[base]
     expected = robot.camera_poses(thetas, psis, world_T_base)
     tips = robot.forward(thetas, psis, world_T_base)
     for cam in range(3):
         n = cam + 1
-        poses, d_poses = camera_poses(thetas[:, :n], SEGMENTS[:n], mounts[cam], world_T_base,
-                                      None if psis is None else psis[:, :n])
-        assert poses.shape == (n_frames, 4, 4) and d_poses.shape == (n_frames, n, 4, 4)
-        np.testing.assert_allclose(poses, expected[cam], atol=1e-13)
-        np.testing.assert_allclose(poses, tips[:, cam] @ mounts[cam], atol=1e-13)
-        plain, none = camera_poses(thetas[:, :n], SEGMENTS[:n], mounts[cam], world_T_base,
-                                   None if psis is None else psis[:, :n], derivatives=False)
+        head = bending.head(n)
+        poses, d_poses = camera_poses(x[:, :head.dim], head, mounts[cam], world_T_base)
+        assert poses.shape == (n_frames, 4, 4)
+        assert d_poses.shape == (n_frames, head.dim, 4, 4)
+        np.testing.assert_allclose(poses, expected[cam], atol=1e-12)
+        np.testing.assert_allclose(poses, tips[:, cam] @ mounts[cam], atol=1e-12)
+        plain, none = camera_poses(x[:, :head.dim], head, mounts[cam], world_T_base,
+                                   derivatives=False)
         assert none is None
         np.testing.assert_array_equal(plain, poses)
     with pytest.raises(ValueError, match="columns"):
-        camera_poses(thetas, SEGMENTS[:2], mounts[0])
+        camera_poses(x, bending.head(2), mounts[0])
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), spatial=st.booleans(), cam=st.integers(0, 2))
-def test_camera_pose_derivatives_match_central_differences(seed: int, spatial: bool,
+@given(seed=st.integers(0, 2**31 - 1), kind=st.sampled_from(["planar", "fixed", "free"]),
+       cam=st.integers(0, 2))
+def test_camera_pose_derivatives_match_central_differences(seed: int, kind: str,
                                                            cam: int) -> None:
     rng = np.random.default_rng(seed)
     n, n_frames = cam + 1, 4
     mount = random_pose(rng, 0.4, 0.05)
-    thetas = rng.uniform(-1.0, 1.0, (n_frames, n))
-    psis = rng.uniform(-math.pi, math.pi, (n_frames, n)) if spatial else None
+    bending, thetas, _, _ = parameterised(kind, rng, n_frames, n)
     base = random_bases(rng, n_frames)
-    _, d_poses = camera_poses(thetas, SEGMENTS[:n], mount, base, psis)
+    _, d_poses = camera_poses(thetas, bending, mount, base)
     np.testing.assert_array_equal(d_poses[..., 3, :], 0.0)
     h = 1e-6
-    for j in range(n):
+    for j in range(bending.dim):
         for f in range(n_frames):
             plus, minus = thetas.copy(), thetas.copy()
             plus[f, j] += h
             minus[f, j] -= h
-            numeric = (camera_poses(plus, SEGMENTS[:n], mount, base, psis, False)[0]
-                       - camera_poses(minus, SEGMENTS[:n], mount, base, psis, False)[0]) / (2 * h)
+            numeric = (camera_poses(plus, bending, mount, base, False)[0]
+                       - camera_poses(minus, bending, mount, base, False)[0]) / (2 * h)
             # Frame f's angle moves frame f only.
             np.testing.assert_allclose(numeric[f], d_poses[f, j], atol=1e-8)
             others = np.delete(numeric, f, axis=0)
@@ -276,10 +305,12 @@ def test_a_track_without_parallax_gets_a_finite_point_in_front() -> None:
 
 
 # -------------------------------------------------------------------------- reduced_system
-def _residuals(robot: Robot, cam: int, sequence, thetas: np.ndarray, points: np.ndarray,
+def _residuals(robot: Robot, cam: int, sequence, x: np.ndarray, points: np.ndarray,
                obs: TrackObservations) -> np.ndarray:
-    """Stacked whitened residuals ``W_k (m(R^T (p - o)) - x_k)``, poses from the robot."""
-    poses = robot.camera_poses(thetas, sequence.psis, sequence.world_T_base)[cam]
+    """Stacked whitened residuals ``W_k (m(R^T (p - o)) - x_k)``, poses from the robot at
+    frame vectors ``x`` (:func:`bending_of` the sequence)."""
+    thetas, psis = bending_of(robot, sequence).polar(x)
+    poses = robot.camera_poses(thetas, psis, sequence.world_T_base)[cam]
     R, o = poses[obs.frames, :3, :3], poses[obs.frames, :3, 3]
     q = np.einsum("nji,nj->ni", R, points[obs.tracks] - o)
     return np.einsum("nij,nj->ni", obs.whiten, q[:, :2] / q[:, 2:] - obs.xy).ravel()
@@ -289,7 +320,7 @@ def _dense_schur(robot: Robot, cam: int, sequence, thetas: np.ndarray, points: n
                  obs: TrackObservations, h: float = 1e-6):
     """H, g and the stacked residual from central differences in (angles, points), the points
     eliminated exactly."""
-    n_frames, n = len(thetas), cam + 1
+    n_frames, n = len(thetas), bending_of(robot, sequence).head(cam + 1).dim
     r = _residuals(robot, cam, sequence, thetas, points, obs)
     Ja = np.zeros((len(r), n_frames * n))
     for f in range(n_frames):
@@ -345,9 +376,11 @@ def test_reduced_system_is_the_dense_schur_complement(lens_robot: Robot, cam: in
     obs = camera_observations(lens_robot, seq, cam)
     assert obs.n_tracks > 20 and np.min(np.diff(obs.starts)) <= 2  # short tracks too
     rng = np.random.default_rng(cam)
-    thetas = seq.thetas + rng.normal(0.0, 0.003, seq.thetas.shape)
-    out = reduced_system(obs, camera_chain(lens_robot, seq, cam), thetas, 0, np.ones(len(obs)))
-    assert out.H.shape == (12 * (cam + 1),) * 2
+    truth = truth_of(lens_robot, seq)
+    thetas = truth + rng.normal(0.0, 0.003, truth.shape)
+    chain = camera_chain(lens_robot, seq, cam)
+    out = reduced_system(obs, chain, thetas, 0, np.ones(len(obs)))
+    assert out.H.shape == (12 * chain.n_parameters,) * 2
     _assert_points_in_scene(out.points, seq)
     H, g, r = _dense_schur(lens_robot, cam, seq, thetas, out.points, obs)
     scale = np.abs(H).max()
@@ -371,7 +404,8 @@ def test_reduced_gradient_is_half_the_derivative_of_the_retriangulated_cost(
     obs = camera_observations(lens_robot, seq, cam)
     chain = camera_chain(lens_robot, seq, cam)
     rng = np.random.default_rng(9)
-    thetas = seq.thetas + rng.normal(0.0, 0.003, seq.thetas.shape)
+    truth = truth_of(lens_robot, seq)
+    thetas = truth + rng.normal(0.0, 0.003, truth.shape)
     w = np.ones(len(obs))
     out = reduced_system(obs, chain, thetas, 0, w)
     _assert_points_in_scene(out.points, seq)
@@ -426,8 +460,8 @@ def test_cost_vanishes_at_the_truth_without_noise(lens_robot: Robot) -> None:
     seq = sim.sequence
     for cam in (1, 2):
         obs = camera_observations(lens_robot, seq, cam)
-        out = reduced_system(obs, camera_chain(lens_robot, seq, cam), seq.thetas, 0,
-                             np.ones(len(obs)))
+        out = reduced_system(obs, camera_chain(lens_robot, seq, cam),
+                             truth_of(lens_robot, seq), 0, np.ones(len(obs)))
         assert out.cost < 1e-12
         assert np.max(out.residuals) < 1e-6
         assert np.max(np.abs(out.g)) < 1e-6 * np.sqrt(np.abs(out.H).max())
@@ -448,7 +482,8 @@ def test_zero_weights_remove_rows(lens_robot: Robot) -> None:
     seq = sim.sequence
     chain = camera_chain(lens_robot, seq, cam)
     rng = np.random.default_rng(13)
-    thetas = seq.thetas + rng.normal(0.0, 0.003, seq.thetas.shape)
+    truth = truth_of(lens_robot, seq)
+    thetas = truth + rng.normal(0.0, 0.003, truth.shape)
     tracks = seq.tracks[cam]
     drop = sim.outliers[cam] | (rng.random(len(tracks)) < 0.1)
     # Tracks with three kept rows or more (a point in the scene, see FAST).
@@ -516,7 +551,8 @@ def test_factor_linearises_to_the_reduced_system(lens_robot: Robot, cam: int) ->
     first, last = int(chunk.frames.min()), int(chunk.frames.max())
     assert first >= 2
     rng = np.random.default_rng(cam)
-    thetas = seq.thetas + rng.normal(0.0, 0.003, seq.thetas.shape)
+    truth = truth_of(lens_robot, seq)
+    thetas = truth + rng.normal(0.0, 0.003, truth.shape)
     values = _values(thetas)
     S, n = lens_robot.n_segments, cam + 1
     factor = ProjectionFactor(chunk, chain, S).factor()

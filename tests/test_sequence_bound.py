@@ -140,7 +140,7 @@ def test_fisher_information_is_the_dense_numerical_one(robot: Robot) -> None:
     part of the depth direction of small-parallax tracks. The dense Fisher with that same
     jitter matches to ~2e-9."""
     sim = simulate(robot, 8, noise_px=1.0, seed=3, scene="room", n_points=300,
-                   moving_base=True, spatial=True)
+                   moving_base=True)
     assert all(len(t) > 50 for t in sim.sequence.tracks.values())
     want = dense_fisher(robot, sim, 1.0, PRIOR)
     info = fisher_information(sim, 1.0, PRIOR)
@@ -272,7 +272,7 @@ def test_calibration_information_is_the_dense_numerical_one(robot: Robot) -> Non
     """The calibration rows and columns of the Fisher information against central differences
     of the pixel predictions in each segment's (k, delta_max), points eliminated exactly."""
     sim = simulate(robot, 8, noise_px=1.0, seed=3, scene="room", n_points=300,
-                   moving_base=True, spatial=True)
+                   moving_base=True)
     S, D0 = 3, 8 * 3
     sigmas = (0.05, math.radians(5.0))
     info = fisher_information(sim, 1.0, PRIOR, calibration_sigmas=sigmas)
@@ -326,5 +326,15 @@ def test_spatial_bound_of_a_spatial_recording(robot: Robot) -> None:
     assert np.all(np.isfinite(bound.sigmas)) and np.all(bound.sigmas > 0)
     loose = sequence_bound(sim, 1.0, 10 * PRIOR, spatial=True)
     assert np.all(loose.sigmas >= bound.sigmas * (1 - 1e-9))
-    with pytest.raises(ValueError, match="spatial"):
-        fisher_information(sim, 1.0, PRIOR, calibration_sigmas=(0.05, 0.1), spatial=True)
+    # The planes free and the models unknown: two calibration columns per segment after the
+    # bending vectors', and the data add to the priors.
+    sigmas = (0.05, 0.1)
+    info = fisher_information(sim, 1.0, PRIOR, calibration_sigmas=sigmas, spatial=True)
+    assert info.shape == (10 * 6 + 6,) * 2
+    unknown = sequence_bound(sim, 1.0, PRIOR, calibration_sigmas=sigmas, spatial=True)
+    assert unknown.calibration.shape == (3, 2)
+    assert np.all(unknown.calibration < np.array(sigmas))
+    assert np.all(unknown.sigmas >= bound.sigmas * (1 - 1e-9))
+    # A robot that bends out of its plane has no planar bound.
+    with pytest.raises(ValueError, match="bends out of the plane"):
+        fisher_information(sim, 1.0, PRIOR)

@@ -19,14 +19,8 @@ from hypothesis import strategies as st
 
 import apcc_graph
 from apcc_graph.estimation.batch import batch_estimate
-from apcc_graph.estimation.initial_guess import (
-    FramePairs,
-    FrameRows,
-    frame_poses,
-    one_point_guess,
-    predict,
-    refine,
-)
+from apcc_graph.estimation.front_end import FramePairs, chained_guess
+from apcc_graph.estimation.initial_guess import FrameRows, frame_poses, predict, refine
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
@@ -34,12 +28,34 @@ from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.estimation.window import RestartWarning, SmootherFrame
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations, Sequence
 from apcc_graph.simulation.simulator import Simulation, simulate
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "data/robots/planar_three.toml"
+
+
+def PLANAR(robot: Robot) -> Bending:  # noqa: N802 - reads as the parameterisation's name
+    """A planar robot's parameterisation: its angles in the planes psi = 0."""
+    return Bending.fixed(robot.segments)
+
+
+def refine_planar(prediction: np.ndarray, robot: Robot, rows: list[FrameRows],
+                  threshold: float, **keywords: int):
+    """:func:`refine` of a planar robot whose base is the world frame."""
+    return refine(prediction, robot, PLANAR(robot), None, rows, threshold, **keywords)
+
+
+def one_point_guess(previous: np.ndarray, prediction: np.ndarray, robot: Robot,
+                    base_previous: np.ndarray | None, base_now: np.ndarray | None,
+                    pairs: list[FramePairs], threshold_px: float
+                    ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """The front end with the 1-point solver; the inlier masks of the cameras that solved."""
+    x, infos = chained_guess(previous, prediction, robot, PLANAR(robot), base_previous,
+                             base_now, pairs, threshold_px)
+    return x, {cam: info.inliers for cam, info in infos.items() if info.success}
 
 
 @pytest.fixture(scope="module")
@@ -312,15 +328,15 @@ def test_frame_poses_equal_forward_kinematics_and_their_derivatives(robot: Robot
     for world_T_base in (None, base):
         for _ in range(3):
             th = rng.uniform(-1.0, 1.0, robot.n_segments)
-            tips, derivs = frame_poses(th, robot, world_T_base)
+            tips, derivs = frame_poses(th, PLANAR(robot), world_T_base)
             np.testing.assert_allclose(np.array(tips), robot.forward(th, None, world_T_base),
                                        atol=1e-12)
             h = 1e-6
             for j in range(robot.n_segments):
                 step = np.zeros(robot.n_segments)
                 step[j] = h
-                plus, _ = frame_poses(th + step, robot, world_T_base)
-                minus, _ = frame_poses(th - step, robot, world_T_base)
+                plus, _ = frame_poses(th + step, PLANAR(robot), world_T_base)
+                minus, _ = frame_poses(th - step, PLANAR(robot), world_T_base)
                 for i in range(robot.n_segments):
                     numeric = (plus[i] - minus[i]) / (2 * h)
                     if j <= i:
@@ -332,10 +348,10 @@ def test_frame_poses_equal_forward_kinematics_and_their_derivatives(robot: Robot
 
 def test_predict_is_constant_velocity_within_the_limits(robot: Robot) -> None:
     a, b = np.radians([10.0, -5.0, 59.0]), np.radians([8.0, -4.0, 50.0])
-    np.testing.assert_allclose(predict(a, None, robot), a)
+    np.testing.assert_allclose(predict(a, None, PLANAR(robot)), a)
     lim = np.array([s.theta_max for s in robot.segments])
-    np.testing.assert_allclose(predict(a, b, robot), np.clip(2 * a - b, -lim, lim))
-    assert predict(a, b, robot)[2] == pytest.approx(lim[2])
+    np.testing.assert_allclose(predict(a, b, PLANAR(robot)), np.clip(2 * a - b, -lim, lim))
+    assert predict(a, b, PLANAR(robot))[2] == pytest.approx(lim[2])
 
 
 @pytest.fixture(scope="module")
@@ -375,7 +391,7 @@ def test_refine_recovers_the_true_angles_from_noise_free_pixels(pnp_sim: Simulat
     truth = pnp_sim.sequence.thetas[f]
     rows, _ = frame_rows(pnp_sim, f)
     assert all(len(r.points) > 20 for r in rows)
-    guess = refine(truth + OFFSET, pnp_sim.sequence.robot, None, rows, 3.5)
+    guess = refine_planar(truth + OFFSET, pnp_sim.sequence.robot, rows, 3.5)
     assert guess.refined
     # Measured: 1e-15 rad.
     np.testing.assert_allclose(guess.thetas, truth, atol=1e-6, rtol=0)
@@ -388,7 +404,7 @@ def test_refine_ignores_twenty_percent_random_pixels(pnp_sim: Simulation) -> Non
     f = 8
     truth = pnp_sim.sequence.thetas[f]
     rows, replaced = frame_rows(pnp_sim, f, noise_px=1.0, outlier_fraction=0.2, seed=3)
-    guess = refine(truth + OFFSET, pnp_sim.sequence.robot, None, rows, 3.5)
+    guess = refine_planar(truth + OFFSET, pnp_sim.sequence.robot, rows, 3.5)
     assert guess.refined
     error = float(np.max(deg(np.abs(guess.thetas - truth))))
     # Measured 0.016: the noise floor (without the random pixels, noise seeds 0-5 give up to
@@ -402,7 +418,7 @@ def test_refine_ignores_twenty_percent_random_pixels(pnp_sim: Simulation) -> Non
     # (measured 1e-12 rad apart).
     true_rows = [FrameRows(r.camera, r.points[~bad], r.xy[~bad], r.whiten[~bad])
                  for r, bad in zip(rows, replaced, strict=True)]
-    oracle = refine(truth + OFFSET, pnp_sim.sequence.robot, None, true_rows, 3.5)
+    oracle = refine_planar(truth + OFFSET, pnp_sim.sequence.robot, true_rows, 3.5)
     np.testing.assert_allclose(guess.thetas, oracle.thetas, atol=1e-9, rtol=0)
 
 
@@ -411,14 +427,14 @@ def test_refine_keeps_the_prediction_without_enough_known_points(pnp_sim: Simula
     truth = pnp_sim.sequence.thetas[8]
     prediction = truth + OFFSET
     few, _ = frame_rows(pnp_sim, 8, limit=2)  # 2 rows per camera
-    guess = refine(prediction, robot, None, few[:2], 3.5, min_rows=6)  # 4 rows of 6 needed
+    guess = refine_planar(prediction, robot, few[:2], 3.5, min_rows=6)  # 4 of 6 rows
     assert not guess.refined
     np.testing.assert_array_equal(guess.thetas, prediction)
     assert guess.thetas is not prediction
     # Only the camera on segment 1 (index 0) sees: segment 1 is refined, the others keep the
     # prediction.
     rows, _ = frame_rows(pnp_sim, 8, cameras=(0,))
-    guess = refine(prediction, robot, None, rows, 3.5)
+    guess = refine_planar(prediction, robot, rows, 3.5)
     assert guess.refined
     assert abs(guess.thetas[0] - truth[0]) < 1e-6
     np.testing.assert_array_equal(guess.thetas[1:], prediction[1:])

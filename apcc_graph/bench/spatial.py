@@ -31,11 +31,11 @@ import numpy as np
 from tqdm import tqdm
 
 from apcc_graph.bench import ROBOT_FILE
+from apcc_graph.estimation.batch import batch_estimate
+from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_runs import smoother_estimate
-from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
-from apcc_graph.estimation.spatial_chain import spatial_chain_estimate
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms, window_rms
@@ -83,14 +83,15 @@ class SpatialBenchmark:
 def _estimate(method: str, seq, progress: bool) -> Estimate:
     theta0, psi0 = seq.thetas[0], seq.psis[0]
     if method == "chain":
-        return spatial_chain_estimate(seq, theta0, psi0, threshold_px=NOISE_PX,
-                                      progress=progress)
+        return chain_estimate(seq, theta0, threshold_px=NOISE_PX, progress=progress,
+                              psi0=psi0, spatial=True)
     options = GraphOptions(theta0_sigma=THETA0_SIGMA, threshold_px=NOISE_PX)
     if method == "batch":
-        return spatial_batch_estimate(seq, theta0, psi0, options=options, progress=progress)
+        return batch_estimate(seq, theta0, options=options, progress=progress, psi0=psi0,
+                              spatial=True)
     if method == "smoother":
         return smoother_estimate(seq, theta0, options=options, progress=progress,
-                                            spatial=True, psi0=psi0)
+                                 spatial=True, psi0=psi0)
     raise ValueError(f"method {method!r}: expected one of {', '.join(METHODS)}")
 
 

@@ -27,37 +27,45 @@ from apcc_graph.estimation.batch_solve import (
     BatchReport,
     ProjectionSolution,
     build_terms,
-    marginal_deviations,
-    marginal_sigmas,
+    marginal_blocks,
     optimise,
     projection_solve,
 )
-from apcc_graph.estimation.chain import chain_estimate
+from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
+from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 
 INITS = ("smoother", "chain")
 
 
-def _initial_angles(sequence: Sequence, theta0: FloatArray, initial: ArrayLike | None,
-                    init: str, options: GraphOptions, progress: bool
-                    ) -> tuple[FloatArray, NDArray[np.str_]]:
-    """``(F, S)`` initial angles and the status of each (``initial`` given, or from ``init``:
-    the chain or the fixed-lag smoother)."""
+def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
+                     start: tuple[ArrayLike | None, ArrayLike | None],
+                     initial: ArrayLike | None, init: str, options: GraphOptions,
+                     progress: bool) -> tuple[FloatArray, NDArray[np.str_]]:
+    """``(F, dim)`` initial frame vectors and the status of each (``initial`` given, or from
+    ``init``: the chain or the fixed-lag smoother, started at ``start = (theta0, psi0)``)."""
+    shape = (sequence.n_frames, bending.dim)
     if initial is None and init == "smoother":
-        first = smoother_estimate(sequence, theta0=theta0, options=options, uncertainty=False,
-                                  progress=progress)
-        return first.thetas, first.status
+        first = smoother_estimate(sequence, theta0=start[0], psi0=start[1], options=options,
+                                  uncertainty=False, progress=progress,
+                                  spatial=bending.is_free)
+        return bending.vector(first.thetas, first.psis), first.status
     if initial is None:
-        chain = chain_estimate(sequence, theta0=theta0, threshold_px=options.threshold_px,
-                               progress=progress)
-        return chain.thetas, chain.status
-    status = np.full((sequence.n_frames, sequence.n_segments), "initial", dtype="<U24")
-    return np.asarray(initial, dtype=float), status
+        x, status, _ = chain_vectors(sequence, bending, x0, options.threshold_px,
+                                     progress=progress)
+        return x, status
+    x = np.asarray(initial, dtype=float)
+    if x.shape != shape:
+        raise ValueError(f"initial has shape {x.shape}: expected {shape}, every frame's "
+                         + ("bending vectors (u_1, v_1, u_2, ...)" if bending.is_free
+                            else "angles") + " in radians")
+    return x, np.full((sequence.n_frames, sequence.n_segments), "initial", dtype="<U24")
 
 
 def batch_estimate(
@@ -72,50 +80,60 @@ def batch_estimate(
     schedule: SequenceOf[float] | None = None,
     calibrate: bool = False,
     calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0)),
+    psi0: ArrayLike | None = None,
+    spatial: bool = False,
 ) -> Estimate:
     """Optimise all frames and segments jointly.
 
     Args:
         sequence: the sequence (ground truth, if any, is never read).
         theta0: ``(S,)`` starting configuration (radians; default straight), held by a prior
-            of ``options.theta0_sigma``.
-        initial: ``(F, S)`` initial angles; default from ``init``.
+            of ``options.theta0_sigma`` (on each component of the start's frame vector).
+        initial: ``(F, dim)`` initial frame vectors (angles, or bending vectors with
+            ``spatial``); default from ``init``.
         options: how the graph is built (:class:`GraphOptions`).
         max_iterations: Levenberg-Marquardt iterations per stage.
         marginals: compute marginal standard deviations (otherwise NaN).
         progress: show progress bars.
-        init: where the initial angles come from when ``initial`` is not given:
-            ``"chain"`` (default: the paper's chained 1-point estimate, fast; it drifts, and
+        init: where the initial values come from when ``initial`` is not given:
+            ``"chain"`` (default: the paper's chained estimate, fast; it drifts, and
             the graduated non-convexity of the outlier decisions brings the batch back from
             there) or ``"smoother"`` (the fixed-lag smoother: closer, slower).
         schedule: the GNC continuation of the outlier decisions.
         calibrate: self-calibration: estimate each segment's k and
-            delta_max jointly with the angles, with priors of ``calibration_sigmas``
+            delta_max jointly with the bends, with priors of ``calibration_sigmas``
             (k, delta_max in radians) around the robot's values. The estimate's ``robot``
             then holds the calibrated segments and ``calibration_sigmas`` their marginal
             standard deviations.
+        psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` only.
+        spatial: the robot bends in 3-D: every frame's unknowns are its bending vectors,
+            smooth through straight, and the estimate has ``psis`` and ``psi_sigmas``
+            (``thetas`` are then the bends' magnitudes ``>= 0``).
 
     Returns:
         The estimate, ``method = "batch"``.
+
+    Raises:
+        ValueError: a bad ``init``, ``theta0``, ``psi0`` or ``initial``.
     """
     options = GraphOptions() if options is None else options
     if init not in INITS:
         raise ValueError(f"init = {init!r}: expected one of {INITS}")
-    theta0 = sequence.robot.configuration(theta0)
-    initial, status = _initial_angles(sequence, theta0, initial, init, options, progress)
-    robot, cal_sigmas = sequence.robot, None
-    found = projection_solve(sequence, initial, theta0, options, schedule, max_iterations,
+    robot = sequence.robot
+    bending = parameterisation(robot, spatial)
+    x0 = start_vector(robot, bending, theta0, psi0)
+    initial, status = _initial_vectors(sequence, bending, x0, (theta0, psi0), initial, init,
+                                       options, progress)
+    found = projection_solve(sequence, initial, x0, options, schedule, max_iterations,
                              marginals=marginals, progress=progress, calibrate=calibrate,
-                             calibration_sigmas=calibration_sigmas)
-    thetas, sigmas, inliers = found.thetas, found.sigmas, found.inliers
+                             calibration_sigmas=calibration_sigmas, bending=bending)
     if found.segments is not None:
         robot = Robot(found.segments, robot.cameras)
-        cal_sigmas = found.calibration_sigmas
     status = np.where(np.char.startswith(status, "initial"), "initial", "ok").astype("<U24")
-    return Estimate(method="batch", robot=robot, timestamps=sequence.timestamps.copy(),
-                    thetas=thetas, sigmas=sigmas, status=status, inliers=inliers,
-                    world_T_base=sequence.world_T_base, calibration_sigmas=cal_sigmas)
+    return bending_estimate("batch", sequence, bending, found.x, found.blocks, status,
+                            found.inliers, robot=robot,
+                            calibration_sigmas=found.calibration_sigmas)
 
 
 __all__ = ["BatchReport", "GraphOptions", "ProjectionSolution", "batch_estimate",
-           "build_terms", "marginal_deviations", "marginal_sigmas", "optimise", "projection_solve"]
+           "build_terms", "marginal_blocks", "optimise", "projection_solve"]

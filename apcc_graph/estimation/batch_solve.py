@@ -33,6 +33,7 @@ from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_start
 from apcc_graph.factors.projection import calibrated, calibration_key
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence
@@ -48,21 +49,20 @@ class BatchReport:
     observations: int
 
 
-def build_terms(sequence: Sequence, options: GraphOptions,
-                calibrate: bool = False, spatial: bool = False) -> list[CameraTerms]:
-    """The projection terms of every camera of the sequence that has tracks (with
-    ``spatial``, over the frames' bending vectors)."""
+def build_terms(sequence: Sequence, options: GraphOptions, bending: Bending | None = None,
+                calibrate: bool = False) -> list[CameraTerms]:
+    """The projection terms of every camera of the sequence that has tracks, over frame
+    vectors of ``bending`` (default: the planar robot's fixed planes). The sequence's
+    ``psis`` are ground truth, which no estimator reads."""
+    bending = Bending.fixed(sequence.robot.segments) if bending is None else bending
     terms = []
-    dim = (2 if spatial else 1) * sequence.n_segments
     for cam in sequence.robot.camera_segments:
         obs = camera_observations(sequence, cam, options.threshold_px, options.min_track_rows,
                                   max_track_frames=options.max_track_frames)
         if obs is None:
             continue
-        # A planar robot bends in the plane psi = 0; the sequence's psis are ground truth,
-        # which no estimator reads.
-        chain = camera_chain(sequence.robot, cam, sequence.world_T_base, None, spatial)
-        terms.append(CameraTerms(obs, chain, dim, options.frames_per_chunk, calibrate))
+        chain = camera_chain(sequence.robot, cam, bending, sequence.world_T_base)
+        terms.append(CameraTerms(obs, chain, bending.dim, options.frames_per_chunk, calibrate))
     return terms
 
 
@@ -101,30 +101,25 @@ def optimise(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, frames: Sequ
     return thetas_from(result, frames), int(optimizer.iterations()), cal
 
 
-def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
-                    frames: SequenceOf[int], dense_limit: int = 6000,
-                    calibration: FloatArray | None = None) -> FloatArray:
-    """``(F, S)`` marginal standard deviations of the angles at ``thetas`` (NaN where
-    undetermined); see :func:`marginal_deviations`."""
-    return marginal_deviations(graph, thetas, frames, dense_limit, calibration)[0]
+def marginal_blocks(graph: gtsam.NonlinearFactorGraph, x: FloatArray,
+                    frames: SequenceOf[int], width: int, dense_limit: int = 6000,
+                    calibration: FloatArray | None = None
+                    ) -> tuple[FloatArray, FloatArray | None]:
+    """Marginal covariances at the solution: ``(F, S, w, w)`` of each segment's ``w =
+    width`` components of the frame vectors ``x`` ``(F, w S)`` and, when self-calibrating,
+    ``(S, 2)`` standard deviations of each segment's k and delta_max; NaN where the system is
+    undetermined.
 
-
-def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
-                        frames: SequenceOf[int], dense_limit: int = 6000,
-                        calibration: FloatArray | None = None
-                        ) -> tuple[FloatArray, FloatArray | None]:
-    """Marginal standard deviations at the solution: ``(F, S)`` angles and, when
-    self-calibrating, ``(S, 2)`` of each segment's k and delta_max (NaN where undetermined).
-
-    Up to ``dense_limit`` angles, the information matrix of the graph linearised at
-    ``thetas`` is inverted densely (far faster than gtsam's per-variable
-    ``marginalCovariance`` on this banded graph); beyond, ``gtsam.Marginals``.
+    Up to ``dense_limit`` unknowns, the information matrix of the graph linearised at ``x`` is
+    inverted densely (far faster than gtsam's per-variable ``marginalCovariance`` on this
+    banded graph); beyond, ``gtsam.Marginals``.
     """
-    values, ordering = _values_and_ordering(thetas, frames, calibration)
-    n_cal = 0 if calibration is None else calibration.size
-    nan = (np.full(thetas.shape, np.nan),
+    n_frames, P = x.shape
+    shape = (n_frames, P // width, width, width)
+    values, ordering = _values_and_ordering(x, frames, calibration)
+    nan = (np.full(shape, np.nan),
            None if calibration is None else np.full(calibration.shape, np.nan))
-    if thetas.size <= dense_limit:
+    if x.size <= dense_limit:
         info, _ = graph.linearize(values).hessian(ordering)
         try:
             L = np.linalg.cholesky(info)
@@ -132,50 +127,25 @@ def marginal_deviations(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray,
             return nan
         L_inv = scipy.linalg.solve_triangular(L, np.eye(len(info)), lower=True,
                                               check_finite=False)
-        sig = np.sqrt(np.einsum("ij,ij->j", L_inv, L_inv))
-        cal = None if calibration is None else sig[thetas.size:].reshape(calibration.shape)
-        return sig[:thetas.size].reshape(thetas.shape), cal
+        cal = None
+        if calibration is not None:
+            tail = L_inv[:, x.size:]
+            cal = np.sqrt(np.einsum("ij,ij->j", tail, tail)).reshape(calibration.shape)
+        rows = L_inv[:, :x.size].reshape(len(info), *shape[:3])
+        return np.einsum("nfsi,nfsj->fsij", rows, rows), cal
     try:
         found = gtsam.Marginals(graph, values)
     except RuntimeError:
         return nan
-
-    def sigma(key: int) -> FloatArray:
-        return np.sqrt(np.maximum(np.diag(found.marginalCovariance(key)), 0.0))
-
-    cal = (None if n_cal == 0 else
-           np.array([sigma(calibration_key(j)) for j in range(len(calibration))]))
-    return np.array([sigma(frame_key(f)) for f in frames]), cal
-
-
-def marginal_blocks(graph: gtsam.NonlinearFactorGraph, x: FloatArray, frames: SequenceOf[int],
-                    block: int, dense_limit: int = 6000) -> FloatArray:
-    """``(F, P / block, block, block)`` marginal covariances of consecutive ``block``-sized
-    groups of each frame's ``P`` components at ``x`` ``(F, P)`` (a spatial robot's bending
-    vectors with ``block = 2``); NaN where the system is undetermined. Dense inversion up to
-    ``dense_limit`` unknowns, ``gtsam.Marginals`` beyond, as :func:`marginal_deviations`."""
-    n_frames, P = x.shape
-    shape = (n_frames, P // block, block, block)
-    values, ordering = _values_and_ordering(x, frames, None)
-    if x.size <= dense_limit:
-        info, _ = graph.linearize(values).hessian(ordering)
-        try:
-            L = np.linalg.cholesky(info)
-        except np.linalg.LinAlgError:
-            return np.full(shape, np.nan)
-        L_inv = scipy.linalg.solve_triangular(L, np.eye(len(info)), lower=True,
-                                              check_finite=False).reshape(len(info), *shape[:3])
-        return np.einsum("nfsi,nfsj->fsij", L_inv, L_inv)
-    try:
-        found = gtsam.Marginals(graph, values)
-    except RuntimeError:
-        return np.full(shape, np.nan)
     out = np.empty(shape)
     for i, f in enumerate(frames):
         cov = found.marginalCovariance(frame_key(f))
         for s in range(shape[1]):
-            out[i, s] = cov[block * s:block * (s + 1), block * s:block * (s + 1)]
-    return out
+            out[i, s] = cov[width * s:width * (s + 1), width * s:width * (s + 1)]
+    cal = (None if calibration is None else np.array([
+        np.sqrt(np.maximum(np.diag(found.marginalCovariance(calibration_key(j))), 0.0))
+        for j in range(len(calibration))]))
+    return out, cal
 
 
 @dataclass(frozen=True)
@@ -183,42 +153,44 @@ class ProjectionSolution:
     """What :func:`projection_solve` found.
 
     Attributes:
-        thetas, sigmas: ``(F, S)`` angles and marginal standard deviations (radians).
+        x: ``(F, dim)`` the frame vectors (radians).
+        blocks: ``(F, S, w, w)`` the marginal covariance of each segment's ``w`` components
+            (radians squared; NaN where undetermined or not asked for).
         inliers: ``(F, S)`` observations judged inliers per frame and camera.
         report: what the solver did.
         segments: the self-calibrated segment models, or ``None``.
         calibration_sigmas: ``(S, 2)`` marginal standard deviations of k and delta_max
             (radians), or ``None``.
-        covariances: spatial only, ``(F, S, 2, 2)`` the marginal covariance of each bending
-            vector (radians squared; NaN where undetermined), or ``None``.
-
-    With ``spatial``, ``thetas`` and ``sigmas`` are ``(F, 2 S)``: bending vectors and the
-    standard deviations of their components.
     """
 
-    thetas: FloatArray
-    sigmas: FloatArray
+    x: FloatArray
+    blocks: FloatArray
     inliers: NDArray[np.int64]
     report: BatchReport
     segments: tuple[Segment, ...] | None = None
     calibration_sigmas: FloatArray | None = None
-    covariances: FloatArray | None = None
+
+    @property
+    def sigmas(self) -> FloatArray:
+        """``(F, dim)`` marginal standard deviations of the frame vectors' components."""
+        diagonal = np.diagonal(self.blocks, axis1=-2, axis2=-1)
+        return np.sqrt(np.maximum(diagonal, 0.0)).reshape(self.x.shape)
 
 
-def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray,
+def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray | None,
                      options: GraphOptions, schedule: SequenceOf[float] | None = None,
                      max_iterations: int = 30, max_final_rounds: int = 4,
                      marginals: bool = True, progress: bool = False,
                      calibrate: bool = False,
                      calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0)),
-                     spatial: bool = False) -> ProjectionSolution:
-    """Angles, sigmas and inliers per frame of the projection batch, started at ``initial``.
+                     bending: Bending | None = None) -> ProjectionSolution:
+    """Frame vectors, covariances and inliers of the projection batch, started at
+    ``initial``.
 
     Args:
         sequence: the sequence.
-        initial: ``(F, S)`` initial angles (radians); ``(F, 2 S)`` bending vectors with
-            ``spatial``.
-        theta0: ``(S,)`` start prior's mean (``(2 S,)`` with ``spatial``), or ``None``.
+        initial: ``(F, dim)`` initial frame vectors of ``bending`` (radians).
+        theta0: ``(dim,)`` start prior's mean, or ``None``.
         options: graph options.
         schedule: the GNC continuation (values of ``mu`` ending with ``inf``); default
             :func:`~apcc_graph.estimation.robust.gnc_start`, fitted to the residuals at
@@ -229,20 +201,18 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         progress: show a progress bar over the stages.
         calibrate: estimate each segment's k and delta_max too, with priors of
             ``calibration_sigmas`` (k, radians) around the robot's values.
-        spatial: the robot bends in 3-D: every frame's variable is its bending vectors
-            (:mod:`apcc_graph.model.bending`); not with ``calibrate``.
+        bending: the parameterisation (default: the planar robot's fixed planes).
     """
-    if spatial and calibrate:
-        raise ValueError("calibrate=True: self-calibration of a spatial robot is not supported")
     if schedule is not None:
         schedule = list(schedule)
         if not schedule or not math.isinf(schedule[-1]):
             raise ValueError(f"schedule = {schedule!r}: expected values ending with inf")
     robot = sequence.robot
+    bending = Bending.fixed(robot.segments) if bending is None else bending
     frames = range(sequence.n_frames)
-    terms = build_terms(sequence, options, calibrate, spatial)
+    terms = build_terms(sequence, options, bending, calibrate)
     graph = _graph(sequence, terms, theta0, options,
-                   calibration_sigmas if calibrate else None, spatial)
+                   calibration_sigmas if calibrate else None, bending)
     thetas = np.array(initial, dtype=float)
     cal = (np.array([[s.k, s.delta_max] for s in robot.segments]) if calibrate else None)
     # One bar over every long stage: triangulation, the outlier rounds, the marginals.
@@ -273,8 +243,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         bar.update()
     bar.n = len(stages) + 1
     bar.set_postfix_str("marginal sigmas")
-    sigmas, cal_sigmas, covariances = _uncertainty(graph, thetas, frames, cal, marginals,
-                                                   spatial)
+    blocks, cal_sigmas = _uncertainty(graph, thetas, frames, bending, cal, marginals)
     bar.update()
     bar.close()
     inliers = np.zeros((sequence.n_frames, sequence.n_segments), dtype=np.int64)
@@ -283,35 +252,28 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     report = BatchReport(stage + 1, iterations, sum(t.outlier_rows() for t in terms),
                          sum(len(c.obs) for t in terms for c in t.chunks))
     segments = None if cal is None else _segments(robot, cal)
-    return ProjectionSolution(thetas, sigmas, inliers, report, segments, cal_sigmas,
-                              covariances)
+    return ProjectionSolution(thetas, blocks, inliers, report, segments, cal_sigmas)
 
 
 def _uncertainty(graph: gtsam.NonlinearFactorGraph, x: FloatArray, frames: SequenceOf[int],
-                 cal: FloatArray | None, marginals: bool, spatial: bool
-                 ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
-    """Marginal sigmas of ``x``, of the calibration and, for a spatial robot, the ``2 x 2``
-    covariances of the bending vectors; NaN without ``marginals``."""
-    if marginals and spatial:
-        covariances = marginal_blocks(graph, x, frames, 2)
-        return np.sqrt(np.diagonal(covariances, axis1=-2, axis2=-1)).reshape(x.shape), None, \
-            covariances
+                 bending: Bending, cal: FloatArray | None, marginals: bool
+                 ) -> tuple[FloatArray, FloatArray | None]:
+    """:func:`marginal_blocks` at the solution, or NaN without ``marginals``."""
     if marginals:
-        sigmas, cal_sigmas = marginal_deviations(graph, x, frames, calibration=cal)
-        return sigmas, cal_sigmas, None
-    return (np.full(x.shape, np.nan), None if cal is None else np.full(cal.shape, np.nan),
-            None)
+        return marginal_blocks(graph, x, frames, bending.width, calibration=cal)
+    w = bending.width
+    return (np.full((len(x), bending.n_segments, w, w), np.nan),
+            None if cal is None else np.full(cal.shape, np.nan))
 
 
-def _graph(sequence: Sequence, terms: list[CameraTerms], theta0: FloatArray,
+def _graph(sequence: Sequence, terms: list[CameraTerms], theta0: FloatArray | None,
            options: GraphOptions, calibration_sigmas: tuple[float, float] | None,
-           spatial: bool = False) -> gtsam.NonlinearFactorGraph:
+           bending: Bending) -> gtsam.NonlinearFactorGraph:
     """The projection batch's graph: priors, calibration priors (when ``calibration_sigmas``
     are given), then every camera's projection factors."""
     graph = gtsam.NonlinearFactorGraph()
     frames = range(sequence.n_frames)
-    for factor in prior_factors(frames, sequence.timestamps, theta0, sequence.robot, options,
-                                spatial=spatial):
+    for factor in prior_factors(frames, sequence.timestamps, theta0, bending, options):
         graph.add(factor)
     if calibration_sigmas is not None:
         for factor in calibration_factors(sequence.robot, calibration_sigmas):

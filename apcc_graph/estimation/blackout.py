@@ -33,10 +33,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.batch_solve import projection_solve
-from apcc_graph.estimation.chain import chain_estimate
+from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_tracks import Rows
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations, Sequence, Tracks
 
@@ -77,12 +78,14 @@ class Reacquisition:
     Args:
         robot: the robot.
         options: the smoother's graph options (the start prior is replaced).
-        theta0: ``(S,)`` the smoother's estimate of the first kept frame (radians).
+        bending: the smoother's parameterisation.
+        theta0: the smoother's estimate of the first kept frame (its frame vector, radians).
         sigma: the start prior of the batch (radians; at least :data:`MIN_SIGMA`).
     """
 
     robot: Robot
     options: GraphOptions
+    bending: Bending
     theta0: FloatArray
     sigma: float
     slots: list[int] = field(default_factory=list)
@@ -100,8 +103,9 @@ class Reacquisition:
         ``t`` (or has left it, after a restart)."""
         return bool(self._times) and self._times[0] < t - lag
 
-    def solve(self) -> tuple[FloatArray, FloatArray]:
-        """``(K, S)`` angles and marginal sigmas of the kept frames (radians)."""
+    def solve(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The kept frames' ``(K, dim)`` frame vectors, ``(K, S w w)`` flattened marginal
+        covariance blocks and ``(K, dim)`` standard deviations (radians)."""
         tracks = {}
         for cam in self.robot.camera_segments:
             rows = [(k, *obs.tracks[cam]) for k, obs in enumerate(self._frames)
@@ -114,6 +118,6 @@ class Reacquisition:
         sequence = Sequence(self.robot, self._times, tracks,
                             None if any(b is None for b in bases) else np.array(bases))
         options = replace(self.options, theta0_sigma=max(self.sigma, MIN_SIGMA))
-        start = chain_estimate(sequence, theta0=self.theta0, threshold_px=options.threshold_px)
-        found = projection_solve(sequence, start.thetas, self.theta0, options)
-        return found.thetas, found.sigmas
+        start, _, _ = chain_vectors(sequence, self.bending, self.theta0, options.threshold_px)
+        found = projection_solve(sequence, start, self.theta0, options, bending=self.bending)
+        return found.x, found.blocks.reshape(len(found.x), -1), found.sigmas

@@ -4,8 +4,8 @@ frame (or, after a pause longer than the window, from its last estimate), a loos
 initial guess when there is no motion prior (so that a frame without tracks never leaves the
 system undetermined), and the soft joint limits when the initial guess comes near them.
 
-Frame vectors are angles ``(S,)`` or, for a spatial robot, bending vectors ``(2 S,)``, whose
-limits bound each one's length.
+Frame vectors are the robot's parameterisation's
+(:class:`~apcc_graph.model.parameterisation.Bending`); the limits bound each segment's bend.
 """
 
 from __future__ import annotations
@@ -15,26 +15,24 @@ import math
 import gtsam
 import numpy as np
 
-from apcc_graph.estimation.graph import bend_limit_factor, frame_key, limit_factor
+from apcc_graph.estimation.graph import frame_key, limit_factor
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.window import Window
 from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.robot import Robot
+from apcc_graph.model.parameterisation import Bending
 
 LIMIT_MARGIN = math.radians(10.0)
 """Soft joint limits join frames whose initial angles come within this of a limit (radians)."""
 
 
-def near_limits(x: FloatArray, robot: Robot, spatial: bool) -> bool:
+def near_limits(x: FloatArray, bending: Bending) -> bool:
     """Whether a frame's vector comes within :data:`LIMIT_MARGIN` of a joint limit."""
-    theta_max = np.array([s.theta_max for s in robot.segments])
-    bend = np.abs(x) if not spatial else np.hypot(x[0::2], x[1::2])
-    return bool(np.any(bend > theta_max - LIMIT_MARGIN))
+    return bool(np.any(bending.magnitudes(x) > bending.theta_max - LIMIT_MARGIN))
 
 
 def frame_priors(graph: gtsam.NonlinearFactorGraph, f: int, dt: float, x: FloatArray,
-                 start: FloatArray, window: Window, robot: Robot, options: GraphOptions,
-                 loose_sigma: float, spatial: bool = False) -> None:
+                 start: FloatArray, window: Window, bending: Bending, options: GraphOptions,
+                 loose_sigma: float) -> None:
     """Add frame f's priors to ``graph``: ``x`` is its initial guess, ``start`` the start
     prior's mean (frame 0), ``dt`` the seconds since the previous frame."""
     dim = len(x)
@@ -52,7 +50,5 @@ def frame_priors(graph: gtsam.NonlinearFactorGraph, f: int, dt: float, x: FloatA
     if f > 0 and options.motion_sigma is None:
         graph.add(gtsam.PriorFactorVector(
             key, x, gtsam.noiseModel.Isotropic.Sigma(dim, loose_sigma)))
-    if near_limits(x, robot, spatial):
-        theta_max = np.array([s.theta_max for s in robot.segments])
-        limit = bend_limit_factor if spatial else limit_factor
-        graph.add(limit(key, theta_max, options.limit_sigma))
+    if near_limits(x, bending):
+        graph.add(limit_factor(key, bending, options.limit_sigma))

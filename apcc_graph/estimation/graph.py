@@ -1,13 +1,13 @@
 """Factor-graph building shared by the batch optimiser and the fixed-lag smoother.
 
-Variables: one ``Vector(S)`` per frame, the angles of all segments (radians), key
-:func:`apcc_graph.factors.projection.frame_key`; for a spatial robot one ``Vector(2 S)``, the
-bending vectors ``(u_0, v_0, u_1, v_1, ...)`` (:mod:`apcc_graph.model.bending`). Factors
-(``docs/estimation.md``):
+Variables: one vector per frame, key :func:`apcc_graph.factors.projection.frame_key`, in the
+robot's parameterisation (:class:`~apcc_graph.model.parameterisation.Bending`): the ``S``
+angles in fixed bending planes (a planar robot), or the ``2 S`` bending-vector components
+``(u_0, v_0, u_1, v_1, ...)`` (radians). Factors (``docs/estimation.md``):
 
 - the start prior on the first frame (``theta0``, ``GraphOptions.theta0_sigma`` per component);
 - a random-walk motion prior between consecutive frames (weak; ``None`` leaves it out);
-- soft joint limits (on ``|theta|``, or on the bending vector's length ``|b|``);
+- soft joint limits on each segment's bend ``|theta|`` (the bending vector's length ``|b|``);
 - per camera, the projection factors of its tracks (:class:`CameraTerms`): every observation
   once, each track's point eliminated, tracks grouped in chunks; row weights hold the robust
   decisions (:mod:`apcc_graph.estimation.robust`).
@@ -35,12 +35,13 @@ from apcc_graph.factors.projection import (
 )
 from apcc_graph.factors.track_points import cut_tracks
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence as RobotSequence
 
-__all__ = ["CameraTerms", "bend_limit_factor", "calibration_factors", "calibration_from",
-           "camera_observations", "frame_key", "prior_factors", "thetas_from", "values_from"]
+__all__ = ["CameraTerms", "calibration_factors", "calibration_from", "camera_observations",
+           "frame_key", "limit_factor", "prior_factors", "thetas_from", "values_from"]
 
 
 def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
@@ -71,15 +72,13 @@ def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
                               camera.pixel_jacobian(xy) / noise_px)
 
 
-def camera_chain(robot: Robot, cam: int, world_T_base: FloatArray | None = None,
-                 psis: FloatArray | None = None, spatial: bool = False) -> CameraChain:
-    """What fixes camera ``cam``'s pose: its segments, mounting, and the base poses (and, for
-    a planar robot, the fixed bending planes ``psis``; a ``spatial`` chain's frame vector holds
-    the bending vectors instead)."""
+def camera_chain(robot: Robot, cam: int, bending: Bending,
+                 world_T_base: FloatArray | None = None) -> CameraChain:
+    """What fixes camera ``cam``'s pose: the parameterisation of its segments, its mounting
+    and the base poses."""
     camera = robot.cameras[cam]
     assert camera is not None
-    return CameraChain(tuple(robot.segments[:cam + 1]), camera.tip_T_cam, world_T_base,
-                       None if spatial else psis, spatial=spatial)
+    return CameraChain(bending.head(cam + 1), camera.tip_T_cam, world_T_base)
 
 
 class CameraTerms:
@@ -88,7 +87,7 @@ class CameraTerms:
     Args:
         obs: the camera's tracks.
         chain: the camera's chain (base poses over the frames the observations index).
-        n_segments: the dimension of a frame's vector (S, or 2 S for a spatial robot).
+        n_segments: the dimension of a frame's vector (the parameterisation's ``dim``).
         frames_per_chunk: see :func:`apcc_graph.factors.projection.chunk_tracks`.
         calibrate: the factors also depend on the segments' ``(k, delta_max)`` variables
             (:func:`apcc_graph.factors.projection.calibration_key`).
@@ -139,57 +138,32 @@ class CameraTerms:
         return int(sum(np.sum(c.weights <= 0.5) for c in self.chunks))
 
 
-def limit_factor(key: int, theta_max: FloatArray, sigma: float) -> gtsam.CustomFactor:
-    """Soft joint limits of one frame: ``r_j = max(0, |theta_j| - theta_max_j) / sigma``."""
-    theta_max = np.asarray(theta_max, dtype=float)
-    S = len(theta_max)
+def limit_factor(key: int, bending: Bending, sigma: float) -> gtsam.CustomFactor:
+    """Soft joint limits of one frame,
+    :meth:`~apcc_graph.model.parameterisation.Bending.limit_residual`: ``r_j = max(0,
+    |b_j| - theta_max_j) / sigma`` per segment, smooth through straight."""
 
     def error_func(this: gtsam.CustomFactor, values: gtsam.Values,
                    H: list[np.ndarray] | None) -> np.ndarray:
-        theta = values.atVector(key)
-        excess = np.abs(theta) - theta_max
-        out = excess > 0.0
+        r, J = bending.limit_residual(values.atVector(key), sigma)
         if H is not None:
-            H[0] = np.diag(np.where(out, np.sign(theta), 0.0) / sigma)
-        return np.where(out, excess, 0.0) / sigma
-
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(S), [key], error_func)
-
-
-def bend_limit_factor(key: int, theta_max: FloatArray, sigma: float) -> gtsam.CustomFactor:
-    """Soft joint limits of one spatial frame: ``r_j = max(0, |b_j| - theta_max_j) / sigma``
-    for each segment's bending vector ``b_j = (u_j, v_j)``; its gradient ``b_j / |b_j|`` is
-    used only outside the limit, so the factor is smooth through straight."""
-    theta_max = np.asarray(theta_max, dtype=float)
-    S = len(theta_max)
-
-    def error_func(this: gtsam.CustomFactor, values: gtsam.Values,
-                   H: list[np.ndarray] | None) -> np.ndarray:
-        b = values.atVector(key).reshape(S, 2)
-        norm = np.hypot(b[:, 0], b[:, 1])
-        out = norm > theta_max
-        if H is not None:
-            J = np.zeros((S, 2 * S), order="F")
-            rows = np.flatnonzero(out)
-            for j in rows:
-                J[j, 2 * j:2 * j + 2] = b[j] / (norm[j] * sigma)
             H[0] = J
-        return np.where(out, norm - theta_max, 0.0) / sigma
+        return r
 
-    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(S), [key], error_func)
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(bending.n_segments), [key],
+                              error_func)
 
 
 def prior_factors(frames: Iterable[int], timestamps: Sequence[float] | FloatArray,
-                  theta0: FloatArray | None, robot: Robot, options: GraphOptions,
-                  limits: bool = True, spatial: bool = False) -> list[gtsam.NonlinearFactor]:
-    """Start prior (when ``theta0`` is given, on the first of ``frames``), motion priors
-    between consecutive frames and joint limits.
+                  theta0: FloatArray | None, bending: Bending, options: GraphOptions,
+                  limits: bool = True) -> list[gtsam.NonlinearFactor]:
+    """Start prior (when ``theta0``, the first frame's vector, is given, on the first of
+    ``frames``), motion priors between consecutive frames and joint limits.
 
-    ``timestamps[f]`` is frame f's time (seconds). With ``spatial`` the frames' vectors are
-    bending vectors, ``2 S`` components, and ``theta0`` is the first frame's bending vector.
+    ``timestamps[f]`` is frame f's time (seconds); frame vectors are ``bending``'s.
     """
     frames = list(frames)
-    dim = (2 if spatial else 1) * robot.n_segments
+    dim = bending.dim
     out: list[gtsam.NonlinearFactor] = []
     if theta0 is not None:
         theta0 = np.asarray(theta0, dtype=float)
@@ -198,7 +172,6 @@ def prior_factors(frames: Iterable[int], timestamps: Sequence[float] | FloatArra
         out.append(gtsam.PriorFactorVector(
             frame_key(frames[0]), theta0,
             gtsam.noiseModel.Isotropic.Sigma(dim, options.theta0_sigma)))
-    theta_max = np.array([s.theta_max for s in robot.segments])
     for prev, f in zip(frames[:-1], frames[1:], strict=True):
         if options.motion_sigma is not None:
             dt = max(float(timestamps[f] - timestamps[prev]), 1e-9)
@@ -206,8 +179,7 @@ def prior_factors(frames: Iterable[int], timestamps: Sequence[float] | FloatArra
                 frame_key(prev), frame_key(f), np.zeros(dim),
                 gtsam.noiseModel.Isotropic.Sigma(dim, options.motion_sigma * np.sqrt(dt))))
     if limits:
-        limit = bend_limit_factor if spatial else limit_factor
-        out += [limit(frame_key(f), theta_max, options.limit_sigma) for f in frames]
+        out += [limit_factor(frame_key(f), bending, options.limit_sigma) for f in frames]
     return out
 
 

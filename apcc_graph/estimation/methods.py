@@ -56,11 +56,12 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         theta0_sigma: standard deviation of the prior on ``theta0`` (radians; default
             :class:`~apcc_graph.estimation.options.GraphOptions`' 0.1 deg); batch and
             smoother only (the chain starts exactly at ``theta0``), and only with ``theta0``.
-        threshold_px: the tracks' pixel noise (pixels, default 1); batch and smoother only.
+        threshold_px: the tracks' pixel noise (pixels, default 1); for the chain, its RANSAC
+            inlier threshold.
         spatial: the robot bends in 3-D: estimate every segment's bending plane ``psi`` too
             (the estimate's ``psis`` and ``psi_sigmas``), in bending vectors smooth through
-            straight (:mod:`~apcc_graph.estimation.spatial_batch`); every method, with a
-            known start (``theta0``, and ``psi0``) and the projection model.
+            straight (:mod:`~apcc_graph.estimation.bends`); every method, with a known start
+            (``theta0``, and ``psi0``).
         psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` only.
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
             :func:`~apcc_graph.estimation.batch.batch_estimate` or
@@ -89,16 +90,23 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     if theta0 is not None:
         sequence.robot.configuration(theta0)
     check_observations(sequence)
-    if spatial or psi0 is not None:
-        return _spatial(sequence, method, theta0, theta0_sigma, psi0, spatial, threshold_px,
-                        options)
+    if psi0 is not None and not spatial:
+        raise ValueError("psi0 is given but spatial is False: bending planes are estimated "
+                         "only for a spatial robot (spatial=True)")
     start = None
     if theta0 is None:
+        if spatial:
+            raise ValueError("spatial=True needs the start (theta0, and psi0 unless 0): the "
+                             "search for an unknown start covers planar robots only")
         if theta0_sigma is not None:
             raise ValueError("theta0_sigma without theta0: with an unknown start the search "
                              "finds the start's uncertainty itself; give theta0 too, or "
                              "neither")
         theta0, theta0_sigma, start = _unknown_start(sequence, method, threshold_px, options)
+    if spatial:
+        options.update(spatial=True, psi0=psi0)
+    if method == "chain" and threshold_px is not None:
+        options["threshold_px"] = float(threshold_px)
     if method in ("batch", "smoother") and (theta0_sigma is not None
                                             or threshold_px is not None):
         from dataclasses import replace
@@ -117,43 +125,6 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     from dataclasses import replace as with_start
 
     return with_start(result, start=start)
-
-
-def _spatial(sequence: Sequence, method: str, theta0: ArrayLike | None,
-             theta0_sigma: float | None, psi0: ArrayLike | None, spatial: bool,
-             threshold_px: float | None, options: dict[str, Any]
-             ) -> Estimate:
-    """A spatial robot's estimate: the chained 2-point method, the spatial batch or the
-    fixed-lag smoother in bending vectors."""
-    if not spatial:
-        raise ValueError("psi0 is given but spatial is False: bending planes are estimated "
-                         "only for a spatial robot (spatial=True)")
-    if theta0 is None:
-        raise ValueError("spatial=True needs the start (theta0, and psi0 unless 0): the search "
-                         "for an unknown start covers planar robots only")
-    if method == "chain":
-        from apcc_graph.estimation.spatial_chain import spatial_chain_estimate
-
-        if threshold_px is not None:
-            options["threshold_px"] = float(threshold_px)
-        return spatial_chain_estimate(sequence, theta0, psi0, **options)
-    from dataclasses import replace
-
-    from apcc_graph.estimation.options import GraphOptions
-
-    changes: dict[str, Any] = {}
-    if theta0_sigma is not None:
-        changes["theta0_sigma"] = float(theta0_sigma)
-    if threshold_px is not None:
-        changes["threshold_px"] = float(threshold_px)
-    options["options"] = replace(options.get("options") or GraphOptions(), **changes)
-    if method == "smoother":
-        from apcc_graph.estimation.smoother_runs import smoother_estimate
-
-        return smoother_estimate(sequence, theta0, spatial=True, psi0=psi0, **options)
-    from apcc_graph.estimation.spatial_batch import spatial_batch_estimate
-
-    return spatial_batch_estimate(sequence, theta0, psi0, **options)
 
 
 def _run(sequence: Sequence, method: str, theta0: ArrayLike, options: dict[str, Any]

@@ -35,6 +35,7 @@ from apcc_graph.factors.projection import ProjectionFactor
 from apcc_graph.factors.reduced_system import robust_residual_norms
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
 
@@ -53,6 +54,7 @@ class ProjectionTracks:
         settings: the smoother's options (``min_live_rows``, ``relinearize``,
             ``point_iterations``).
         window: the smoother's window (the estimates the pieces are judged at).
+        bending: the parameterisation of the frames' vectors.
 
     Attributes:
         live: the live pieces.
@@ -62,10 +64,9 @@ class ProjectionTracks:
     """
 
     def __init__(self, robot: Robot, options: GraphOptions,
-                 settings: SmootherOptions, window: Window,
-                 spatial: bool = False) -> None:
+                 settings: SmootherOptions, window: Window, bending: Bending) -> None:
         self.robot = robot
-        self.dim = (2 if spatial else 1) * robot.n_segments  # a frame's vector
+        self.dim = bending.dim  # a frame's vector
         self.options = options
         self.settings = settings
         self.window = window
@@ -73,7 +74,7 @@ class ProjectionTracks:
         self.bases: dict[int, FloatArray | None] = {}
         self.committed = 0
         self.outliers = 0
-        self._chains = {c: camera_chain(robot, c, spatial=spatial)
+        self._chains = {c: camera_chain(robot, c, bending)
                         for c in robot.camera_segments}
 
     def _new_live(self) -> LiveTracks:
@@ -95,7 +96,7 @@ class ProjectionTracks:
         if all(b is None for b in bases):
             return chain
         stack = np.stack([np.eye(4) if b is None else b for b in bases])
-        return CameraChain(chain.segments, chain.tip_T_cam, stack, None, first, chain.spatial)
+        return CameraChain(chain.bending, chain.tip_T_cam, stack, first)
 
     def span(self, first: int, last: int) -> FloatArray:
         """``(last - first + 1, P)`` the current estimates of frames ``first..last`` (``P``:

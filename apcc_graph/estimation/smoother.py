@@ -34,24 +34,26 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from apcc_graph.estimation.bends import parameterisation, start_vector
 from apcc_graph.estimation.blackout import Reacquisition, tracks_returned, warn_blackout
 from apcc_graph.estimation.frame_priors import frame_priors
+from apcc_graph.estimation.front_end import front_end_guess
 from apcc_graph.estimation.graph import frame_key
 from apcc_graph.estimation.initial_guess import predict, refine
 from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
 from apcc_graph.estimation.smoother_options import SmootherOptions, smoother_settings
-from apcc_graph.estimation.spatial_bends import start_bends
-from apcc_graph.estimation.spatial_stream import covariance_blocks, front_end_guess, present
 from apcc_graph.estimation.start_check import check_start
 from apcc_graph.estimation.stillness import StillFrames
 from apcc_graph.estimation.window import (
     SmootherFrame,
     Window,
     check_timestamp,
+    component_sigmas,
     key_stamps,
     new_gtsam_smoother,
+    present_frame,
     start_angles,
     warn_restart,
 )
@@ -72,8 +74,8 @@ class FixedLagSmoother:
         settings: the smoother's options
             (:class:`~apcc_graph.estimation.smoother_options.SmootherOptions`).
         spatial: the robot bends in 3-D: every frame's variables are its bending vectors
-            (:mod:`apcc_graph.estimation.spatial_stream`), and the frames returned have
-            ``psis`` and ``psi_sigmas``; re-acquisition after a blackout is planar only.
+            (:mod:`apcc_graph.estimation.bends`), and the frames returned have ``psis`` and
+            ``psi_sigmas``.
         psi0: ``(S,)`` the bending planes at the start (radians; default 0); ``spatial``
             only.
         **keywords: fields of :class:`SmootherOptions` (``landmarks``, ``relinearize``, ...),
@@ -100,17 +102,16 @@ class FixedLagSmoother:
         self.spatial = bool(spatial)
         if psi0 is not None and not self.spatial:
             raise ValueError(f"{name}: psi0 is given but spatial is False")
-        self.theta0 = start_angles(name, robot, theta0)
-        if self.spatial:
-            self.theta0 = start_bends(robot, self.theta0, psi0)
+        self.bending = b = parameterisation(robot, self.spatial)  # every frame's variables
+        self.theta0 = start_vector(robot, b, start_angles(name, robot, theta0), psi0)
         self.start_contradicted = False
         """Whether the first frame's images contradicted ``theta0`` (a warning said so)."""
         self.robot = robot
         self.options = o = GraphOptions() if options is None else options
-        self._window = Window(s.lag, (4 if spatial else 1) * robot.n_segments,
+        self._window = Window(s.lag, b.width**2 * robot.n_segments,
                               lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold),
-                              present if spatial else None)
-        self._tracks = ProjectionTracks(robot, o, s, self._window, self.spatial)
+                              lambda frame: present_frame(b, frame))
+        self._tracks = ProjectionTracks(robot, o, s, self._window, b)
         w = self._window
         self._landmarks = Landmarks(robot, self._tracks.chain, lambda g: (w.thetas[g], w.times[g]),
                                     o.threshold_px, o.inlier_sigmas, s.lag, s.max_landmarks,
@@ -176,11 +177,12 @@ class FixedLagSmoother:
         if still.hold(rows, base, f, t, window.inside(f - 1)):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
-        if (self._tracked and not self.spatial and window.inside(f - 1)
+        if (self._tracked and window.inside(f - 1)
                 and tracks_returned(rows, self._previous_rows, self._known)):
-            sigmas = self._sigmas(f - 1)
+            sigmas = component_sigmas(self.bending, self._sigmas(f - 1))
             warn_blackout(still.count - 1, still.last_time or 0.0, sigmas)
-            self._reacquiring = Reacquisition(self.robot, self.options, window.thetas[f - 1],
+            self._reacquiring = Reacquisition(self.robot, self.options, self.bending,
+                                              window.thetas[f - 1],
                                               float(np.nanmax(sigmas, initial=math.pi / 6)))
         self._tracked = self._tracked or bool(rows)
         if self._reacquiring is not None:
@@ -201,8 +203,7 @@ class FixedLagSmoother:
         self._tracks.live.vouch(f, accepted)
         self._previous_rows, self._previous_base = rows, base
         frame_priors(add.graph, f, 0.0 if previous is None else t - previous, thetas,
-                     self.theta0, window, self.robot, self.options, self.settings.loose_sigma,
-                     self.spatial)
+                     self.theta0, window, self.bending, self.options, self.settings.loose_sigma)
         live = self._tracks.live_factors(add.graph)
         self._solve(add.graph, f, t, thetas, live, add.values, add.stamps)
         window.count += 1
@@ -236,21 +237,20 @@ class FixedLagSmoother:
         """The new frame's angles and status, and per camera the tracks the front end accepted
         (if it ran); ``weights`` get the outlier decisions of its observations of known
         points."""
-        S, spatial, accepted = self.robot.n_segments, self.spatial, {}
+        S, bending, accepted = self.robot.n_segments, self.bending, {}
         if f == 0:
             return self.theta0.copy(), np.full(S, "initial", dtype="<U24"), accepted
         known, masks = self._tracks.known_rows(rows, marks, self._landmarks)
         previous = self._window.latest(f - 1)
-        prediction = predict(previous, self._window.latest(f - 2), self.robot, spatial)
+        prediction = predict(previous, self._window.latest(f - 2), bending)
         counts: dict[int, int] = {}
         for cam, mask in masks:
             counts[cam] = counts.get(cam, 0) + int(mask.sum())
         if any(counts.get(cam, 0) < self.settings.front_end_rows for cam in rows):
             prediction, accepted = front_end_guess(
-                spatial, previous, prediction, self.robot, self._previous_base, base,
+                previous, prediction, self.robot, bending, self._previous_base, base,
                 self._previous_rows, rows, self.options.threshold_px, self._rng)
-        guess = refine(prediction, self.robot, base, known, self.options.inlier_sigmas,
-                       spatial=spatial)
+        guess = refine(prediction, self.robot, bending, base, known, self.options.inlier_sigmas)
         for (cam, mask), flags in zip(masks, guess.row_inliers, strict=True):
             weights[cam][mask] = flags.astype(float)
         status = np.full(S, "ok" if guess.refined else "predicted", dtype="<U24")
@@ -311,18 +311,18 @@ class FixedLagSmoother:
         if not window.inside(g):
             return
         try:
-            thetas, sigmas = kept.solve()
+            thetas, blocks, sigmas = kept.solve()
         except (RuntimeError, ValueError, IndexError):
             return  # the window goes on as it was
-        status = np.full(len(thetas[0]), "reacquired", dtype="<U24")
-        for h, th, sd in zip(kept.slots, thetas, sigmas, strict=True):
+        status = np.full(self.robot.n_segments, "reacquired", dtype="<U24")
+        for h, th, cov in zip(kept.slots, thetas, blocks, strict=True):
             if window.inside(h):
                 window.thetas[h], window.status[h] = th, status
             elif h in window.final:  # left at a restart, not taken yet
-                window.final[h] = SmootherFrame(h, window.final[h].timestamp, th, sd, status)
+                window.final[h] = SmootherFrame(h, window.final[h].timestamp, th, cov, status)
         sigma = np.where(np.isfinite(sigmas[-1]), np.maximum(sigmas[-1], 1e-6), math.pi / 6)
         self._restart(g, window.stamps[g], thetas[-1], gtsam.noiseModel.Diagonal.Sigmas(sigma),
-                      None, dict(zip(kept.slots, sigmas, strict=True)))
+                      None, dict(zip(kept.slots, blocks, strict=True)))
 
     def _restart(self, f: int, t: float, thetas: FloatArray,
                  prior: gtsam.noiseModel.Base | None = None, status: str | None = "recovered",
@@ -361,7 +361,7 @@ class FixedLagSmoother:
             self._tracks.bases.pop(g, None)
 
     def _sigmas(self, g: int) -> FloatArray:
-        """Frame g's marginal sigmas (spatial: its covariance blocks, see the window)."""
+        """Frame g's marginal covariance blocks, flattened (see the window)."""
         nan = np.full(self._window.n_segments, np.nan)
         if not self.settings.uncertainty:
             return nan
@@ -369,7 +369,7 @@ class FixedLagSmoother:
             cov = self._smoother.marginalCovariance(frame_key(g))
         except (RuntimeError, IndexError, ValueError):
             return nan  # not in gtsam's Bayes tree
-        return covariance_blocks(cov) if self.spatial else np.sqrt(np.maximum(np.diag(cov), 0))
+        return self.bending.blocks(cov).ravel()
 
     def _frame_estimate(self, f: int) -> SmootherFrame:
         window = self._window

@@ -153,8 +153,8 @@ def _refine(sequence: Sequence, start: FloatArray, options: GraphOptions,
     chain = chain_estimate(sequence, theta0=start, threshold_px=options.threshold_px)
     straight = np.zeros(sequence.n_segments)
     found = projection_solve(sequence, chain.thetas, straight, options)
-    return Hypothesis(start, found.thetas, found.sigmas,
-                      robust_cost(terms, found.thetas, options.inlier_sigmas))
+    return Hypothesis(start, found.x, found.sigmas,
+                      robust_cost(terms, found.x, options.inlier_sigmas))
 
 
 def find_start(sequence: Sequence, seconds: float = START_SECONDS,

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 
 
@@ -63,6 +64,10 @@ class SmootherFrame:
         psis, psi_sigmas: for a spatial robot, ``(S,)`` bending planes and their standard
             deviations (radians; ``thetas`` are then the bends' magnitudes, as in
             :class:`~apcc_graph.estimation.result.Estimate`); ``None`` otherwise.
+
+    Inside the window a frame is recorded in the smoother's parameterisation (``thetas`` its
+    frame vector, ``sigmas`` its flattened covariance blocks); :func:`present_frame` turns
+    that record into the above.
     """
 
     frame: int
@@ -72,6 +77,26 @@ class SmootherFrame:
     status: NDArray[np.str_]
     psis: FloatArray | None = None
     psi_sigmas: FloatArray | None = None
+
+
+def present_frame(bending: Bending, frame: SmootherFrame) -> SmootherFrame:
+    """A frame as a smoother returns it, from its record: the frame vector ``thetas`` and the
+    flattened per-segment covariance blocks ``sigmas``
+    (:meth:`~apcc_graph.model.parameterisation.Bending.blocks`)."""
+    x = np.asarray(frame.thetas, dtype=float)
+    w = bending.width
+    blocks = np.asarray(frame.sigmas, dtype=float).reshape(bending.n_segments, w, w)
+    thetas, psis = bending.polar(x)
+    sigmas, psi_sigmas = bending.deviations(x, blocks)
+    return replace(frame, thetas=thetas, sigmas=sigmas, psis=psis, psi_sigmas=psi_sigmas)
+
+
+def component_sigmas(bending: Bending, blocks: FloatArray) -> FloatArray:
+    """``(dim,)`` standard deviations of a frame vector's components from its flattened
+    covariance blocks (NaN stays NaN)."""
+    w = bending.width
+    C = np.asarray(blocks, dtype=float).reshape(bending.n_segments, w, w)
+    return np.sqrt(np.maximum(np.diagonal(C, axis1=-2, axis2=-1), 0.0)).ravel()
 
 
 def new_gtsam_smoother(lag: float, relinearize_threshold: float) -> gtsam.FixedLagSmoother:
@@ -108,11 +133,11 @@ class Window:
 
     Args:
         lag: window length (seconds).
-        n_segments: the length of a frame's sigmas (its angles; for a spatial robot the
-            ``4 S`` entries of its bending vectors' covariance blocks).
+        n_segments: the length of a frame's recorded sigmas (the ``S w^2`` entries of its
+            covariance blocks, :func:`present_frame`).
         new_smoother: makes gtsam's smoother for the window (again after a restart).
-        present: turns a frame's record into what the smoother returns (for a spatial robot:
-            bending vectors into bends and bending planes); default as recorded.
+        present: turns a frame's record into what the smoother returns
+            (:func:`present_frame`); default as recorded.
 
     Attributes:
         smoother: gtsam's smoother holding the window's variables.

@@ -32,6 +32,7 @@ from apcc_graph.factors.reduced_system import reduced_system
 from apcc_graph.factors.track_points import cut_tracks
 from apcc_graph.model.arrays import FloatArray, rms, window_rms
 from apcc_graph.model.bending import bending_vector
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.simulation.simulator import Simulation
 
 
@@ -101,13 +102,13 @@ def fisher_information(simulation: Simulation, noise_px: float,
     assert seq.thetas is not None
     n_frames, S = seq.n_frames, seq.n_segments
     calibrate = calibration_sigmas is not None
-    if spatial and calibrate:
-        raise ValueError("fisher_information: spatial=True with calibration_sigmas is not "
-                         "supported")
+    if not spatial and seq.psis is not None and np.any(seq.psis != 0.0):
+        raise ValueError("fisher_information: the recording bends out of the plane psi = 0; "
+                         "its bound is the spatial one (spatial=True)")
     truth = true_parameters(simulation, spatial)
-    P = 2 if spatial else 1
-    S *= P  # parameters per frame from here on
-    D0 = n_frames * S
+    bending = Bending.free(robot.segments) if spatial else Bending.fixed(robot.segments)
+    P = bending.dim  # parameters per frame
+    D0 = n_frames * P
     info = np.zeros((D0 + (2 * S if calibrate else 0),) * 2)
     for cam in seq.tracks:
         camera = robot.cameras[cam]
@@ -125,8 +126,7 @@ def fisher_information(simulation: Simulation, noise_px: float,
         landmark = np.zeros(obs.n_tracks, dtype=np.int64)
         order = np.lexsort((tracks.frames[inlier], ids[inlier]))
         landmark[obs.tracks] = simulation.landmarks[cam][inlier][order]
-        chain = CameraChain(tuple(robot.segments[:cam + 1]), camera.tip_T_cam,
-                            seq.world_T_base, seq.psis, spatial=spatial)
+        chain = CameraChain(bending.head(cam + 1), camera.tip_T_cam, seq.world_T_base)
         n = chain.n_parameters
         for chunk in chunk_tracks(obs):
             part = obs.select(chunk)
@@ -134,12 +134,12 @@ def fisher_information(simulation: Simulation, noise_px: float,
             out = reduced_system(part, chain, truth[first:last + 1], first,
                                  np.ones(len(part)), simulation.points_world[landmark[chunk]],
                                  refine_points=False, calibration=calibrate)
-            index = ((np.arange(first, last + 1) * S)[:, None] + np.arange(n)).ravel()
+            index = ((np.arange(first, last + 1) * P)[:, None] + np.arange(n)).ravel()
             if calibrate:
-                index = np.concatenate([index, D0 + np.arange(2 * n)])
+                index = np.concatenate([index, D0 + np.arange(2 * (cam + 1))])
             info[np.ix_(index, index)] += out.H
     if theta0_sigma is not None:
-        info[np.arange(S), np.arange(S)] += 1.0 / theta0_sigma**2
+        info[np.arange(P), np.arange(P)] += 1.0 / theta0_sigma**2
     if calibration_sigmas is not None:
         prior = np.tile(1.0 / np.asarray(calibration_sigmas, dtype=float) ** 2, S)
         info[D0 + np.arange(2 * S), D0 + np.arange(2 * S)] += prior
@@ -177,14 +177,14 @@ def sequence_bound(simulation: Simulation, noise_px: float,
     info = fisher_information(simulation, noise_px, theta0_sigma, max_track_frames,
                               calibration_sigmas=calibration_sigmas, spatial=spatial)
     n_frames, S = simulation.sequence.n_frames, simulation.sequence.n_segments
-    if spatial:
-        components = _bound_sigmas(info)
-        pairs = components.reshape(n_frames, S, 2)
-        return SequenceBound(np.sqrt(np.sum(pairs**2, axis=-1)), theta0_sigma, None,
-                             components.reshape(n_frames, 2 * S))
     sigmas = _bound_sigmas(info)
-    D0 = n_frames * S
+    D0 = n_frames * S * (2 if spatial else 1)
     calibration = None if calibration_sigmas is None else sigmas[D0:].reshape(S, 2)
+    if spatial:
+        components = sigmas[:D0].reshape(n_frames, 2 * S)
+        pairs = components.reshape(n_frames, S, 2)
+        return SequenceBound(np.sqrt(np.sum(pairs**2, axis=-1)), theta0_sigma, calibration,
+                             components)
     return SequenceBound(sigmas[:D0].reshape(n_frames, S), theta0_sigma, calibration)
 
 
