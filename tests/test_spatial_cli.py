@@ -113,10 +113,9 @@ def test_cli_estimate_spatial_and_evaluate(spatial_folder, tmp_path: Path, metho
 
 @pytest.mark.parametrize(("extra", "expected"), [
     (["--psi0-deg=0,0,0"], "--psi0-deg applies to --spatial only"),
-    (["--spatial"], "--spatial needs the start"),
-    (["--spatial", "--theta0-deg=0,0,0", "--calibrate"], "drop --calibrate"),
+    (["--spatial", "--psi0-deg=0,0,0"], "--psi0-deg applies to a given start"),
     (["--spatial", "--theta0-deg=0,0,0", "--psi0-deg=1,2"], "--psi0-deg '1,2': expected"),
-], ids=["psi0-without-spatial", "no-start", "calibrate", "psi0-count"])
+], ids=["psi0-without-spatial", "psi0-without-theta0", "psi0-count"])
 def test_cli_spatial_refusals(spatial_folder, tmp_path: Path, extra: list[str], expected: str,
                               capsys: pytest.CaptureFixture[str]) -> None:
     folder, _ = spatial_folder

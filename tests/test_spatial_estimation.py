@@ -317,8 +317,8 @@ def test_spatial_api_refusals(robot) -> None:
     theta0 = seq.thetas[0]
     with pytest.raises(ValueError, match="psi0 is given but spatial is False"):
         estimate(seq, theta0=theta0, psi0=[0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="needs the start"):
-        estimate(seq, spatial=True)
+    with pytest.raises(ValueError, match="psi0 without theta0"):
+        estimate(seq, spatial=True, psi0=[0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="psi0 is given but spatial is False"):
         FixedLagSmoother(robot, theta0=theta0, psi0=[0.0, 0.0, 0.0])
     with pytest.raises(TypeError, match="vision"):  # the epipolar back end is gone
@@ -349,3 +349,31 @@ def test_a_spatial_robot_is_reacquired_after_every_camera_went_blind(robot) -> N
     err = rms(est.errors(seq.thetas, seq.psis)[later])
     bound = rms(sequence_bound(blind, 1.0, spatial=True).sigmas[later])
     assert np.all(err < 2.0 * bound), (np.degrees(err), np.degrees(bound))
+
+
+def test_the_unknown_start_of_a_spatial_robot(robot) -> None:
+    """No theta0, no psi0: the search finds every bending vector at frame 0 from one second of
+    images (hypotheses around the first segment's ring of bends, propagated by the 2-point
+    chain, refined by the batch), within 3 of its own sigmas, which are the vision-only
+    bound; the batch then starts there and the estimate says where it found the start."""
+    sim = simulate(robot, 31, noise_px=1.0, outlier_fraction=0.1, seed=3, fps=30.0,
+                   scene="room", amplitude=0.8, spatial=True)
+    seq = sim.sequence
+    free = Bending.free(robot.segments)
+    truth = free.vector(seq.thetas[0], seq.psis[0])
+    assert np.degrees(free.magnitudes(truth)[0]) > 10.0  # far from straight: a real search
+    est = estimate(seq, method="batch", spatial=True)
+    start = est.start
+    assert start is not None and start.psi0 is not None and start.hypotheses == 4
+    found = free.vector(start.theta0, start.psi0)
+    error = free.magnitudes(found - truth)
+    bound = sequence_bound(sim, 1.0, theta0_sigma=None, spatial=True).sigmas[0]
+    assert np.all(error < 3.0 * start.sigma0), (np.degrees(error), np.degrees(start.sigma0))
+    assert np.sqrt(np.mean((error / bound) ** 2)) < 2.0
+    # sigma0 is the worst direction's sigma of each bending vector: between the bound of the
+    # vector's error norm over sqrt(2) and that bound
+    assert np.all((start.sigma0 > 0.6 * bound) & (start.sigma0 < 1.1 * bound)), (
+        np.degrees(start.sigma0), np.degrees(bound))
+    err = est.rms(seq.thetas, seq.psis)
+    assert np.all(err < 2.0 * np.sqrt(np.mean(sequence_bound(
+        sim, 1.0, theta0_sigma=None, spatial=True).sigmas ** 2, axis=0)))

@@ -23,6 +23,7 @@ from apcc_graph.estimation.start_search import (
 )
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.io import load_robot, save_sequence
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.simulator import Simulation, simulate
 
@@ -41,10 +42,18 @@ def one_second() -> Simulation:
 
 def test_hypotheses_spread_the_first_segment() -> None:
     robot = load_robot(ROBOT_FILE)
-    starts = start_hypotheses(robot)
+    starts = start_hypotheses(Bending.fixed(robot.segments))
     assert starts.shape == (3, 3)
     assert np.all(starts[:, 1:] == 0.0)
     assert sorted(starts[:, 0]) == pytest.approx([-math.radians(30), 0.0, math.radians(30)])
+    # free planes: straight and a ring of three bending vectors of half theta_max
+    free = Bending.free(robot.segments)
+    ring = start_hypotheses(free)
+    assert ring.shape == (4, 6) and np.all(ring[:, 2:] == 0.0)
+    lengths = free.magnitudes(ring)[:, 0]
+    assert sorted(lengths) == pytest.approx([0.0] + [math.radians(30)] * 3)
+    planes = np.sort(np.degrees(free.polar(ring[1:])[1][:, 0]))
+    np.testing.assert_allclose(planes, [-120.0, 0.0, 120.0], atol=1e-9)
 
 
 def test_an_unknown_start_is_found_within_its_bound(one_second: Simulation) -> None:
@@ -97,14 +106,18 @@ def test_a_blind_camera_is_named(one_second: Simulation) -> None:
 def test_two_distant_fits_of_equal_cost_are_ambiguous(one_second: Simulation) -> None:
     window = one_second.sequence
     thetas = np.zeros((window.n_frames, 3))
-    sigmas = np.full((window.n_frames, 3), math.radians(1.0))
+    blocks = np.full((window.n_frames, 3, 1, 1), math.radians(1.0) ** 2)
+    planar = Bending.fixed(window.robot.segments)
 
     def hyp(offset_deg: float, cost: float) -> Hypothesis:
-        return Hypothesis(np.zeros(3), thetas + math.radians(offset_deg), sigmas, cost)
+        return Hypothesis(np.zeros(3), thetas + math.radians(offset_deg), blocks, cost)
 
-    assert _undetermined(window, [hyp(0, 100.0), hyp(0.5, 101.0)], math.radians(5), 9.0) == ""
-    assert _undetermined(window, [hyp(0, 100.0), hyp(10, 150.0)], math.radians(5), 9.0) == ""
-    reason = _undetermined(window, [hyp(0, 100.0), hyp(10, 104.0)], math.radians(5), 9.0)
+    def why(*hyps: Hypothesis) -> str:
+        return _undetermined(window, planar, list(hyps), math.radians(5), 9.0)
+
+    assert why(hyp(0, 100.0), hyp(0.5, 101.0)) == ""
+    assert why(hyp(0, 100.0), hyp(10, 150.0)) == ""
+    reason = why(hyp(0, 100.0), hyp(10, 104.0))
     assert "two starts" in reason and "104.0" in reason
 
 

@@ -7,7 +7,8 @@ import argparse
 from apcc_graph.cli.common import FORMATTER, UserError, add_dask_options, bench_robot_option
 
 EXAMPLES = {
-    "start": "apcc-graph bench start --runs 100\n  apcc-graph bench start --runs 10 --workers 1",
+    "start": "apcc-graph bench start --runs 100\n  apcc-graph bench start --runs 10 --workers 1"
+             "\n  apcc-graph bench start --spatial --runs 50",
 }
 """Example commands per benchmark of this module."""
 
@@ -22,11 +23,14 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         "px, 10%% outliers, a start anywhere within 80%% of theta_max), find each start "
         "without any prior on it, and compare with the Cramer-Rao bound of the same recording "
         "with vision alone. Counts the seeds within 2x of the bound, those that said they "
-        "could not tell, and silent failures.")
+        "could not tell, and silent failures. With --spatial the robot bends in 3-D and the "
+        "search finds its bending vectors.")
     stb.add_argument("--runs", type=int, default=100, help="recordings (default: %(default)s)")
     stb.add_argument("--seed", type=int, default=1, help="first seed (default: %(default)s)")
     stb.add_argument("--seconds", type=float, default=1.0,
                      help="length of each recording, seconds (default: %(default)s)")
+    stb.add_argument("--spatial", action="store_true",
+                     help="the robot bends in 3-D: find every segment's bending plane too")
     add_dask_options(stb)
     stb.set_defaults(run=run_start)
 
@@ -41,5 +45,5 @@ def run_start(args: argparse.Namespace) -> str:
         raise UserError(f"--seconds {args.seconds!r}: expected 0.1 to 60 seconds")
     seeds = list(range(args.seed, args.seed + args.runs))
     runs = run_start_benchmark(args.robot, seeds, args.seconds, workers=args.workers,
-                               progress=True)
-    return format_start_benchmark(runs, args.seconds)
+                               progress=True, spatial=args.spatial)
+    return format_start_benchmark(runs, args.seconds, args.spatial)

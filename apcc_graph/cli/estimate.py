@@ -118,12 +118,9 @@ def _spatial_options(args: argparse.Namespace) -> dict:
         raise UserError("--psi0-deg applies to --spatial only")
     if not args.spatial:
         return {}
-    if args.theta0_deg is None:
-        raise UserError("--spatial needs the start: give --theta0-deg (and --psi0-deg unless "
-                        "the bending planes start at 0); the search for an unknown start "
-                        "covers planar robots only")
-    if args.calibrate:
-        raise UserError("--spatial runs without self-calibration: drop --calibrate")
+    if args.psi0_deg is not None and args.theta0_deg is None:
+        raise UserError("--psi0-deg applies to a given start (--theta0-deg); without either, "
+                        "the search finds the bending planes at the start too")
     return {"spatial": True}
 
 

@@ -60,9 +60,10 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             inlier threshold.
         spatial: the robot bends in 3-D: estimate every segment's bending plane ``psi`` too
             (the estimate's ``psis`` and ``psi_sigmas``), in bending vectors smooth through
-            straight (:mod:`~apcc_graph.estimation.bends`); every method, with a known start
-            (``theta0``, and ``psi0``).
-        psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` only.
+            straight (:mod:`~apcc_graph.estimation.bends`); every method, and the unknown
+            start too (the search then finds the planes at frame 0).
+        psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` and
+            ``theta0`` only.
         **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
             :func:`~apcc_graph.estimation.batch.batch_estimate` or
             :func:`~apcc_graph.estimation.smoother_runs.smoother_estimate`); e.g.
@@ -73,8 +74,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             must be loaded first, with ``apcc_graph.load_sequence``).
         ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
             ``theta_max`` (radians); a sequence without a single observation;
-            ``theta0_sigma`` without ``theta0``; ``psi0`` without ``spatial``; ``spatial``
-            without ``theta0``.
+            ``theta0_sigma`` or ``psi0`` without ``theta0``; ``psi0`` without ``spatial``.
         UnknownStartError: (a ``ValueError``) no ``theta0``, and the recording never tells
             the start (the robot never moved enough; the message says which segment).
 
@@ -95,14 +95,13 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
                          "only for a spatial robot (spatial=True)")
     start = None
     if theta0 is None:
-        if spatial:
-            raise ValueError("spatial=True needs the start (theta0, and psi0 unless 0): the "
-                             "search for an unknown start covers planar robots only")
-        if theta0_sigma is not None:
-            raise ValueError("theta0_sigma without theta0: with an unknown start the search "
-                             "finds the start's uncertainty itself; give theta0 too, or "
-                             "neither")
-        theta0, theta0_sigma, start = _unknown_start(sequence, method, threshold_px, options)
+        if theta0_sigma is not None or psi0 is not None:
+            raise ValueError(f"{'theta0_sigma' if theta0_sigma is not None else 'psi0'} "
+                             "without theta0: with an unknown start the search finds the "
+                             "start and its uncertainty itself; give theta0 too, or neither")
+        theta0, theta0_sigma, start = _unknown_start(sequence, method, threshold_px, spatial,
+                                                     options)
+        psi0 = start.psi0
     if spatial:
         options.update(spatial=True, psi0=psi0)
     if method == "chain" and threshold_px is not None:
@@ -146,7 +145,8 @@ def _run(sequence: Sequence, method: str, theta0: ArrayLike, options: dict[str, 
 
 
 def _unknown_start(sequence: Sequence, method: str, threshold_px: float | None,
-                   options: dict[str, Any]) -> tuple[Any, float | None, StartReport]:
+                   spatial: bool, options: dict[str, Any]
+                   ) -> tuple[Any, float | None, StartReport]:
     """The start found from the data (:mod:`~apcc_graph.estimation.start_search`): the
     configuration, the prior the estimator then holds it with, and the report.
 
@@ -169,7 +169,8 @@ def _unknown_start(sequence: Sequence, method: str, threshold_px: float | None,
     if threshold_px is not None:
         graph = replace(graph, threshold_px=float(threshold_px))
     search = start_from_data(sequence, options=graph,
-                             max_sigma=MAX_SIGMA if method == "batch" else FIRM_SIGMA)
+                             max_sigma=MAX_SIGMA if method == "batch" else FIRM_SIGMA,
+                             spatial=spatial)
     if method == "batch":
         sigma: float | None = PRIOR_SIGMA
     elif method == "smoother":

@@ -21,6 +21,9 @@ class StartReport:
         seconds: the length of that window (seconds).
         n_frames: its frames.
         hypotheses: starting hypotheses refined.
+        psi0: for a robot estimated as spatial, ``(S,)`` the bending planes at frame 0
+            (radians; ``theta0`` are then the bends' magnitudes, and ``sigma0`` the sigma of
+            each bending vector along its worst-determined direction); ``None`` otherwise.
     """
 
     theta0: FloatArray
@@ -28,6 +31,7 @@ class StartReport:
     seconds: float
     n_frames: int
     hypotheses: int
+    psi0: FloatArray | None = None
 
 
 @dataclass(frozen=True)

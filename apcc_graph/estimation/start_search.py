@@ -7,10 +7,12 @@ motion: a segment that barely moves in the first second leaves its own absolute 
 
 :func:`find_start` looks at the first ``seconds`` of a recording:
 
-1. **Hypotheses.** The first segment's angle at frame 0 is the worst determined, so the
-   hypotheses spread it over its range (straight and half its ``theta_max`` either way), the
-   outer segments straight. Each is propagated over the frames by the paper's chain (the
-   1-point solver, frame after frame).
+1. **Hypotheses.** The first segment's bend at frame 0 is the worst determined, so the
+   hypotheses spread it over its range, the outer segments straight: for a planar robot
+   straight and half its ``theta_max`` either way; for a robot that bends in 3-D straight and
+   three bending vectors of length half its ``theta_max`` at planes 0 and +-120 degrees. Each
+   is propagated over the frames by the paper's chain (the 1-point or 2-point solver, frame
+   after frame).
 2. **Refinement.** Each propagated hypothesis starts the projection batch over those frames
    (every observation once, each track's point eliminated, graduated non-convexity of the
    outlier decisions), with only a weak prior on frame 0 (``prior_sigma``, 30 degrees
@@ -20,9 +22,11 @@ motion: a segment that barely moves in the first second leaves its own absolute 
    the robust cost the batch minimises, independent of where it started. The lowest wins.
 4. **Deciding.** The winner's marginal sigmas of frame 0 say whether the data told: a segment
    above ``max_sigma`` (15 degrees by default, half the weak prior: the images must carry at
-   least three quarters of the information) is *undetermined* (the robot barely moved, or its
-   camera saw too few tracks), and so is a second solution far from the winner (more than 3
-   of its sigmas) whose cost is within ``ambiguity`` of it. An undetermined search says why
+   least three quarters of the information; for a bending vector, its sigma along its
+   worst-determined direction) is *undetermined* (the robot barely moved, or its camera saw
+   too few tracks), and so is a second solution far from the winner (more than 3 of its sigmas
+   on some segment, a Mahalanobis distance for a bending vector) whose cost is within
+   ``ambiguity`` of it. An undetermined search says why
    in its ``reason`` instead of guessing. The sigmas are honest: on the start benchmark they
    are the Cramér-Rao bound of the window to a few percent.
 
@@ -39,12 +43,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from apcc_graph.estimation.batch_solve import build_terms, projection_solve
-from apcc_graph.estimation.chain import chain_estimate
+from apcc_graph.estimation.bends import parameterisation
+from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.graph import CameraTerms
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import StartReport
 from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.robot import Robot
+from apcc_graph.model.bending import bending_vector
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
 
 START_SECONDS = 1.0
@@ -70,11 +76,12 @@ class UnknownStartError(ValueError):
 
 @dataclass(frozen=True)
 class Hypothesis:
-    """One refined hypothesis: where it started, where it ended, its robust cost."""
+    """One refined hypothesis: where it started, where it ended, its robust cost. Frame
+    vectors are the search's parameterisation's (radians)."""
 
-    start: FloatArray  # (S,) frame 0's angles it started from (radians)
-    thetas: FloatArray  # (F, S) the refined angles of the window (radians)
-    sigmas: FloatArray  # (F, S) their marginal sigmas (radians; NaN where singular)
+    start: FloatArray  # (dim,) frame 0's vector it started from
+    x: FloatArray  # (F, dim) the refined frame vectors of the window
+    blocks: FloatArray  # (F, S, w, w) their marginal covariance blocks (NaN where singular)
     cost: float  # truncated quadratic of the whitened reprojection errors
 
 
@@ -88,6 +95,7 @@ class StartSearch:
         hypotheses: every refined hypothesis, the winner first.
         determined: whether the data told the start.
         reason: why not (empty when determined).
+        bending: the parameterisation searched in (free planes for a spatial robot).
     """
 
     n_frames: int
@@ -95,39 +103,47 @@ class StartSearch:
     hypotheses: tuple[Hypothesis, ...]
     determined: bool
     reason: str
+    bending: Bending
 
     @property
-    def thetas(self) -> FloatArray:
-        """``(F, S)`` the winner's angles over the window (radians)."""
-        return self.hypotheses[0].thetas
-
-    @property
-    def sigmas(self) -> FloatArray:
-        """``(F, S)`` the winner's marginal sigmas (radians)."""
-        return self.hypotheses[0].sigmas
+    def x0(self) -> FloatArray:
+        """``(dim,)`` the winner's frame vector at frame 0 (radians)."""
+        return self.hypotheses[0].x[0]
 
     @property
     def theta0(self) -> FloatArray:
-        """``(S,)`` the winner's configuration at frame 0 (radians)."""
-        return self.thetas[0]
+        """``(S,)`` the winner's bends at frame 0 (radians; magnitudes for free planes)."""
+        return self.bending.polar(self.x0)[0]
+
+    @property
+    def psi0(self) -> FloatArray | None:
+        """``(S,)`` the winner's bending planes at frame 0 (radians), or ``None`` (fixed)."""
+        return self.bending.polar(self.x0)[1]
 
     @property
     def sigma0(self) -> FloatArray:
-        """``(S,)`` its marginal sigmas (radians; NaN where the data left it singular)."""
-        return self.sigmas[0]
+        """``(S,)`` its marginal sigmas (radians; along the worst-determined direction of a
+        bending vector; NaN where the data left it singular)."""
+        return self.bending.spreads(self.hypotheses[0].blocks[0])
 
     def report(self) -> StartReport:
         """The summary an :class:`~apcc_graph.estimation.result.Estimate` carries."""
         return StartReport(self.theta0.copy(), self.sigma0.copy(), self.seconds, self.n_frames,
-                           len(self.hypotheses))
+                           len(self.hypotheses), self.psi0)
 
 
-def start_hypotheses(robot: Robot) -> FloatArray:
-    """``(H, S)`` starting configurations tried (radians): the first segment straight and at
-    half its ``theta_max`` either way, the others straight."""
-    half = 0.5 * robot.segments[0].theta_max
-    starts = np.zeros((3, robot.n_segments))
-    starts[1:, 0] = (-half, half)
+def start_hypotheses(bending: Bending) -> FloatArray:
+    """``(H, dim)`` starting frame vectors tried (radians), the outer segments straight: the
+    first segment straight and at half its ``theta_max`` either way (fixed planes), or
+    straight and three bending vectors of that length at planes 0 and +-120 degrees (free)."""
+    half = 0.5 * bending.segments[0].theta_max
+    if not bending.is_free:
+        starts = np.zeros((3, bending.dim))
+        starts[1:, 0] = (-half, half)
+        return starts
+    starts = np.zeros((4, bending.dim))
+    u, v = bending_vector(half, np.array([0.0, 2.0 * math.pi / 3.0, -2.0 * math.pi / 3.0]))
+    starts[1:, 0], starts[1:, 1] = u, v
     return starts
 
 
@@ -135,7 +151,7 @@ def robust_cost(terms: list[CameraTerms], thetas: FloatArray, inlier_sigmas: flo
     """The truncated quadratic ``sum min(r^2, c^2)`` of every observation's whitened
     reprojection error ``r`` (``c = inlier_sigmas``) in the projection ``terms`` of a
     window (:func:`~apcc_graph.estimation.batch_solve.build_terms`), each track's point
-    triangulated robustly at ``thetas`` (``(F, S)``, radians)."""
+    triangulated robustly at the frame vectors ``thetas`` (``(F, dim)``, radians)."""
     c = inlier_sigmas
     total = 0.0
     for terms_of_camera in terms:
@@ -146,20 +162,20 @@ def robust_cost(terms: list[CameraTerms], thetas: FloatArray, inlier_sigmas: flo
     return total
 
 
-def _refine(sequence: Sequence, start: FloatArray, options: GraphOptions,
+def _refine(sequence: Sequence, bending: Bending, start: FloatArray, options: GraphOptions,
             terms: list[CameraTerms]) -> Hypothesis:
     """One hypothesis propagated by the chain and refined by the batch over the window,
     scored on the window's ``terms`` (built once for every hypothesis)."""
-    chain = chain_estimate(sequence, theta0=start, threshold_px=options.threshold_px)
-    straight = np.zeros(sequence.n_segments)
-    found = projection_solve(sequence, chain.thetas, straight, options)
-    return Hypothesis(start, found.x, found.sigmas,
+    x, _, _ = chain_vectors(sequence, bending, start, options.threshold_px)
+    found = projection_solve(sequence, x, np.zeros(bending.dim), options, bending=bending)
+    return Hypothesis(start, found.x, found.blocks,
                       robust_cost(terms, found.x, options.inlier_sigmas))
 
 
 def find_start(sequence: Sequence, seconds: float = START_SECONDS,
                options: GraphOptions | None = None, max_sigma: float = MAX_SIGMA,
-               prior_sigma: float = PRIOR_SIGMA, ambiguity: float = AMBIGUITY) -> StartSearch:
+               prior_sigma: float = PRIOR_SIGMA, ambiguity: float = AMBIGUITY,
+               spatial: bool = False) -> StartSearch:
     """The configuration over the first ``seconds`` of ``sequence``, without a start prior.
 
     Args:
@@ -172,6 +188,7 @@ def find_start(sequence: Sequence, seconds: float = START_SECONDS,
         prior_sigma: the weak prior on frame 0 (radians).
         ambiguity: robust-cost margin under which a distant second solution makes the start
             ambiguous.
+        spatial: the robot bends in 3-D: search the bending vectors (the planes too).
 
     Returns:
         The search; ``determined`` says whether to trust it, ``reason`` why not.
@@ -188,29 +205,31 @@ def find_start(sequence: Sequence, seconds: float = START_SECONDS,
     window = sequence.head(min(n_frames, sequence.n_frames))
     span = float(window.timestamps[-1] - window.timestamps[0])
     options = replace(GraphOptions() if options is None else options, theta0_sigma=prior_sigma)
+    bending = parameterisation(sequence.robot, spatial)
     if window.n_frames < 2:
-        empty = Hypothesis(np.zeros(sequence.n_segments), np.zeros((1, sequence.n_segments)),
-                           np.full((1, sequence.n_segments), np.nan), math.inf)
-        return StartSearch(1, 0.0, (empty,), False, "a single frame shows no motion")
-    terms = build_terms(window, options)
-    refined = sorted((_refine(window, start, options, terms)
-                      for start in start_hypotheses(sequence.robot)), key=lambda h: h.cost)
-    reason = _undetermined(window, refined, max_sigma, ambiguity)
-    return StartSearch(window.n_frames, span, tuple(refined), not reason, reason)
+        w = bending.width
+        empty = Hypothesis(np.zeros(bending.dim), np.zeros((1, bending.dim)),
+                           np.full((1, sequence.n_segments, w, w), np.nan), math.inf)
+        return StartSearch(1, 0.0, (empty,), False, "a single frame shows no motion", bending)
+    terms = build_terms(window, options, bending)
+    refined = sorted((_refine(window, bending, start, options, terms)
+                      for start in start_hypotheses(bending)), key=lambda h: h.cost)
+    reason = _undetermined(window, bending, refined, max_sigma, ambiguity)
+    return StartSearch(window.n_frames, span, tuple(refined), not reason, reason, bending)
 
 
-def _undetermined(window: Sequence, refined: list[Hypothesis], max_sigma: float,
-                  ambiguity: float) -> str:
+def _undetermined(window: Sequence, bending: Bending, refined: list[Hypothesis],
+                  max_sigma: float, ambiguity: float) -> str:
     """Why the window does not tell the start ('' when it does)."""
     best = refined[0]
-    sigma0 = best.sigmas[0]
+    sigma0 = bending.spreads(best.blocks[0])
     span = float(window.timestamps[-1] - window.timestamps[0])
     seen = {cam: len(window.tracks[cam]) if cam in window.tracks else 0
             for cam in window.robot.camera_segments}
     few = [f"cam_{cam + 1} ({n})" for cam, n in seen.items() if n < MIN_OBSERVATIONS]
     open_ = [j for j, s in enumerate(sigma0) if not (math.isfinite(s) and s <= max_sigma)]
     if open_:
-        moved = np.degrees(np.ptp(best.thetas, axis=0))
+        moved = np.degrees(np.max(bending.magnitudes(best.x - best.x[0]), axis=0))
         sigma_text = ["undetermined" if not math.isfinite(s) else f"{math.degrees(s):.1f} deg"
                       for s in sigma0]
         shown = "; ".join(f"segment {j + 1}: sigma {sigma_text[j]}, moved {moved[j]:.1f} deg"
@@ -220,18 +239,34 @@ def _undetermined(window: Sequence, refined: list[Hypothesis], max_sigma: float,
         return (f"the first {span:.2f} s do not tell the start ({shown}; limit "
                 f"{math.degrees(max_sigma):.1f} deg): {why}")
     for other in refined[1:]:
-        far = np.abs(other.thetas[0] - best.thetas[0]) > 3.0 * sigma0
+        far = _distances(bending, other.x[0] - best.x[0], best.blocks[0]) > 3.0
         if np.any(far) and other.cost - best.cost < ambiguity:
-            a, b = (", ".join(f"{v:+.1f}" for v in np.degrees(h.thetas[0]))
+            a, b = (", ".join(f"{v:+.1f}" for v in np.degrees(h.x[0]))
                     for h in (best, other))
             return (f"the first {span:.2f} s fit two starts about equally well ({a} deg, cost "
                     f"{best.cost:.1f}; {b} deg, cost {other.cost:.1f})")
     return ""
 
 
+def _distances(bending: Bending, d: FloatArray, blocks: FloatArray) -> FloatArray:
+    """``(S,)`` each segment's Mahalanobis distance of the difference ``d`` ``(dim,)`` under
+    its covariance block (``|d| / sigma`` for an angle; ``inf`` where the block is singular
+    and ``d`` is not zero)."""
+    out = np.empty(bending.n_segments)
+    for j in range(bending.n_segments):
+        dj, C = d[bending.columns(j)], blocks[j]
+        try:
+            out[j] = math.sqrt(max(float(dj @ np.linalg.solve(C, dj)), 0.0))
+        except np.linalg.LinAlgError:
+            out[j] = 0.0 if not np.any(dj) else math.inf
+        if not math.isfinite(out[j]):
+            out[j] = 0.0 if not np.any(dj) else math.inf
+    return out
+
+
 def start_from_data(sequence: Sequence, seconds: float = START_SECONDS,
                     options: GraphOptions | None = None, max_sigma: float = MAX_SIGMA,
-                    prior_sigma: float = PRIOR_SIGMA) -> StartSearch:
+                    prior_sigma: float = PRIOR_SIGMA, spatial: bool = False) -> StartSearch:
     """:func:`find_start` over 1, 2, 4, ... times ``seconds`` until the start is determined.
 
     Raises:
@@ -240,7 +275,8 @@ def start_from_data(sequence: Sequence, seconds: float = START_SECONDS,
     """
     window = seconds
     while True:
-        search = find_start(sequence, window, options, max_sigma, prior_sigma)
+        search = find_start(sequence, window, options, max_sigma, prior_sigma,
+                            spatial=spatial)
         if search.determined:
             return search
         if search.n_frames >= sequence.n_frames:

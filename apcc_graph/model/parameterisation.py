@@ -222,6 +222,17 @@ class Bending:
         return np.stack([C[..., w * j:w * (j + 1), w * j:w * (j + 1)]
                          for j in range(self.n_segments)], axis=-3)
 
+    def spreads(self, blocks: ArrayLike) -> FloatArray:
+        """``(..., S)`` each segment's standard deviation along its worst-determined direction:
+        the square root of its block's largest eigenvalue (fixed planes: the angle's sigma);
+        NaN where a block is NaN."""
+        C = np.asarray(blocks, dtype=float)
+        if self.planes is not None:
+            return np.sqrt(np.maximum(C[..., 0, 0], 0.0))
+        bad = np.isnan(C).any(axis=(-2, -1))
+        largest = np.linalg.eigvalsh(np.where(bad[..., None, None], 0.0, C))[..., -1]
+        return np.where(bad, np.nan, np.sqrt(np.maximum(largest, 0.0)))
+
     def deviations(self, x: ArrayLike, blocks: ArrayLike
                    ) -> tuple[FloatArray, FloatArray | None]:
         """First-order ``(sigma_theta, sigma_psi)``, each ``(..., S)``, of frame vectors
