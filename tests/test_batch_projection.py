@@ -19,6 +19,7 @@ from apcc_graph.estimation import batch_solve as batch_module
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate, projection_solve
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import CameraTerms
+from apcc_graph.estimation.options import BatchOptions, Robustness
 from apcc_graph.estimation.robust import gnc_schedule
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.factors.track_points import cut_tracks
@@ -80,7 +81,8 @@ def test_noise_free_moving_base_returns_the_truth_from_one_degree_off(
         offset = math.radians(1.0) * rng.uniform(-1.0, 1.0, seq.thetas.shape)
     options = GraphOptions(motion_sigma=None, theta0_sigma=1e-9)  # threshold_px stays 1
     est = batch_estimate(seq, theta0=seq.thetas[0], initial=seq.thetas + offset,
-                         options=options, marginals=False, schedule=schedule)
+                         options=options, marginals=False,
+                         robustness=Robustness(schedule=schedule))
     assert est.method == "batch" and est.thetas.shape == (20, 3)
     worst = np.abs(est.thetas - seq.thetas).max(axis=1)
     assert np.all(worst < 1e-6), (
@@ -218,14 +220,18 @@ def test_the_batch_never_reads_the_sequences_ground_truth(robot: Robot) -> None:
 
 
 def test_bad_options_and_schedule_are_refused(robot: Robot) -> None:
-    with pytest.raises(ValueError, match="GraphOptions.inlier_sigmas"):
-        GraphOptions(inlier_sigmas=0.0)
-    seq = room(robot, 5, seed=0).sequence
+    with pytest.raises(ValueError, match="Robustness.inlier_sigmas"):
+        Robustness(inlier_sigmas=0.0)
+    with pytest.raises(TypeError, match="inlier_sigmas"):  # not the measurement model's
+        GraphOptions(inlier_sigmas=3.0)  # type: ignore[call-arg]
     for schedule in ([1.0, 4.0, 16.0], []):
         with pytest.raises(ValueError, match="schedule.*inf"):
-            batch_estimate(seq, theta0=seq.thetas[0], initial=seq.thetas, schedule=schedule)
+            Robustness(schedule=schedule)
+    seq = room(robot, 5, seed=0).sequence
     with pytest.raises(ValueError, match="'bogus'"):
         batch_estimate(seq, theta0=seq.thetas[0], init="bogus")
+    with pytest.raises(ValueError, match="BatchOptions.init = 'bogus'"):
+        BatchOptions(init="bogus")
 
 
 # ---------------------------------------------------------------------- self-calibration

@@ -18,7 +18,7 @@ from apcc_graph.simulation.simulator import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 ROBOT = ROOT / "data" / "robots" / "planar_three.toml"
-OPTIONS = {"threshold_px": 1.0, "theta0": np.zeros(3)}  # a given start: mechanics, not accuracy
+OPTIONS = {"noise_px": 1.0, "theta0": np.zeros(3)}  # a given start: mechanics, not accuracy
 
 
 @pytest.fixture(scope="module")

@@ -15,6 +15,7 @@ import pytest
 
 import apcc_graph
 from apcc_graph.cli import main
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.io import load_sequence, save_sequence
 from apcc_graph.model.sequence import Sequence
 
@@ -43,7 +44,7 @@ def sample() -> Sequence:
 
 def test_a_pause_longer_than_the_lag_costs_no_accuracy(sample: Sequence) -> None:
     steady, paused = shortened(sample, 0.0), shortened(sample, PAUSE)
-    kwargs = dict(method="smoother", theta0=sample.thetas[0], threshold_px=0.5)
+    kwargs = dict(method="smoother", theta0=sample.thetas[0], noise_px=0.5)
     reference = apcc_graph.estimate(steady, **kwargs)
     estimate = apcc_graph.estimate(paused, **kwargs)
     truth = paused.thetas
@@ -63,7 +64,7 @@ def test_a_pause_longer_than_the_lag_costs_no_accuracy(sample: Sequence) -> None
 def test_the_batch_and_the_command_line_take_a_pause(sample: Sequence, tmp_path: Path) -> None:
     paused = shortened(sample, PAUSE)
     batch = apcc_graph.estimate(paused, method="batch", theta0=sample.thetas[0],
-                                threshold_px=0.5)
+                                noise_px=0.5)
     assert np.degrees(batch.rms(paused.thetas)).max() < 0.3
     save_sequence(paused, tmp_path / "paused")
     assert main(["estimate", str(tmp_path / "paused"), "--method", "smoother", "--out",
@@ -77,7 +78,7 @@ def test_a_lag_of_a_few_frames(sample: Sequence) -> None:
     """A 0.1 s lag (3 frames at 30 fps): every frame leaves the window three updates after it
     came, and the next frames must still read its estimate."""
     steady = shortened(sample, 0.0)
-    estimate = apcc_graph.estimate(steady, method="smoother", lag=0.1,
-                                   theta0=sample.thetas[0], threshold_px=0.5)
+    estimate = apcc_graph.estimate(steady, method="smoother", theta0=sample.thetas[0],
+                                   noise_px=0.5, settings=SmootherOptions(lag=0.1))
     assert np.all(np.isfinite(estimate.thetas))
     assert np.degrees(estimate.rms(steady.thetas)).max() < 1.0

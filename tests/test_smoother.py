@@ -8,7 +8,7 @@ commit e8f4598 (degrees unless stated).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +22,9 @@ from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.front_end import FramePairs, chained_guess
 from apcc_graph.estimation.initial_guess import FrameRows, frame_poses, predict, refine
 from apcc_graph.estimation.live_tracks import LiveTracks
-from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.options import BatchOptions, GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.estimation.window import RestartWarning, SmootherFrame
 from apcc_graph.evaluation.sequence_bound import sequence_bound
@@ -526,7 +527,10 @@ def stream(seq: Sequence, frames: list[FrameObservations] | None = None, lag: fl
            **kwargs: object) -> dict:
     """Feed the frames one by one, popping final frames after every update."""
     kwargs.setdefault("theta0", seq.thetas[0])
-    smoother = FixedLagSmoother(seq.robot, lag=lag, **kwargs)  # type: ignore[arg-type]
+    names = {f.name for f in fields(SmootherOptions)}
+    settings = SmootherOptions(**{k: kwargs.pop(k) for k in list(kwargs) if k in names})
+    smoother = FixedLagSmoother(seq.robot, lag=lag, settings=settings,
+                                **kwargs)  # type: ignore[arg-type]
     frames = [seq.frame(f) for f in range(seq.n_frames)] if frames is None else frames
     filtered, popped = [], []
     for obs in frames:
@@ -727,7 +731,8 @@ def test_a_gtsam_failure_restarts_the_smoother_and_it_goes_on(sim60: Simulation,
     find the system indeterminate (RuntimeError): the smoother warns, restarts from its last
     estimate and keeps every frame."""
     seq = sim60.sequence
-    smoother = FixedLagSmoother(seq.robot, theta0=seq.thetas[0], uncertainty=False)
+    smoother = FixedLagSmoother(seq.robot, theta0=seq.thetas[0],
+                                settings=SmootherOptions(uncertainty=False))
     for f in range(30):
         smoother.update(seq.frame(f))
     smoother._smoother = _FailOnce(smoother._smoother, error)
@@ -757,7 +762,7 @@ def seq_short(robot: Robot) -> Sequence:
 
 def test_non_increasing_timestamps_are_refused(seq_short: Sequence) -> None:
     smoother = FixedLagSmoother(seq_short.robot, theta0=seq_short.thetas[0],
-                                uncertainty=False)
+                                settings=SmootherOptions(uncertainty=False))
     smoother.update(seq_short.frame(0))
     smoother.update(seq_short.frame(1))
     second = seq_short.frame(1)
@@ -786,10 +791,12 @@ def test_observations_of_a_segment_without_camera_are_refused(robot: Robot,
     ({"lag": float("inf")}, "lag"),
     ({"theta0": [0.0, 0.0]}, r"theta0 has shape \(2,\)"),
     ({"theta0": np.zeros((1, 3))}, "theta0"), ({"theta0": [0.0, float("nan"), 0.0]}, "theta0"),
-    ({"min_live_rows": 1}, "min_live_rows"),
+    ({"settings": {"min_live_rows": 1}}, "min_live_rows"),
 ])
 def test_bad_smoother_arguments_are_refused(robot: Robot, options: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
+        if "settings" in options:
+            options = {"settings": SmootherOptions(**options["settings"])}
         FixedLagSmoother(robot, **options)
 
 
@@ -800,20 +807,23 @@ def test_a_robot_is_required() -> None:
 
 # ------------------------------------------------------------------------ estimate() entry
 def test_estimate_with_the_smoother(seq_short: Sequence) -> None:
+    quick = SmootherOptions(uncertainty=False)
     est = apcc_graph.estimate(seq_short, method="smoother", theta0=seq_short.thetas[0],
-                              uncertainty=False)
+                              settings=quick)
     assert est.method == "smoother"
     F = seq_short.n_frames
     assert est.thetas.shape == est.sigmas.shape == est.status.shape == (F, 3)
     np.testing.assert_array_equal(est.timestamps, seq_short.timestamps)
     assert np.all(np.isfinite(est.thetas))
     assert est.status[0].tolist() == ["initial"] * 3
-    direct = smoother_estimate(seq_short, theta0=seq_short.thetas[0], uncertainty=False)
+    direct = smoother_estimate(seq_short, theta0=seq_short.thetas[0], settings=quick)
     np.testing.assert_allclose(est.thetas, direct.thetas, atol=1e-12, rtol=0)
     assert apcc_graph.FixedLagSmoother is FixedLagSmoother
-    with pytest.raises(ValueError, match="does not self-calibrate"):
+    # self-calibration is the batch's option: the smoother's record has no such field
+    with pytest.raises(TypeError, match="expected SmootherOptions for method 'smoother', got "
+                       "BatchOptions \\(the options of method 'batch'\\)"):
         apcc_graph.estimate(seq_short, method="smoother", theta0=seq_short.thetas[0],
-                            calibrate=True)
+                            settings=BatchOptions(calibrate=True))
 
 
 # ------------------------------------------------------------------------------ landmarks

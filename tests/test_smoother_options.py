@@ -47,8 +47,8 @@ def test_numbers_are_stored_as_plain_types() -> None:
     assert type(options.min_live_rows) is int and type(options.lag) is float
 
 
-def test_keywords_build_the_record_and_read_back(robot: Robot) -> None:
-    smoother = FixedLagSmoother(robot, lag=0.5, landmarks=False)
+def test_the_record_reads_back(robot: Robot) -> None:
+    smoother = FixedLagSmoother(robot, settings=SmootherOptions(lag=0.5, landmarks=False))
     assert smoother.settings == SmootherOptions(lag=0.5, landmarks=False)
     assert smoother.lag == 0.5 and not smoother.landmarks
     assert smoother.loose_sigma == math.radians(30.0)
@@ -56,17 +56,20 @@ def test_keywords_build_the_record_and_read_back(robot: Robot) -> None:
         _ = smoother.no_such_field
 
 
-def test_a_whole_record_with_keywords_overriding_it(robot: Robot) -> None:
+def test_a_whole_record_with_the_lag_overriding_it(robot: Robot) -> None:
     base = SmootherOptions(lag=0.5, commit_every=3)
     assert FixedLagSmoother(robot, settings=base).settings is base
-    smoother = FixedLagSmoother(robot, settings=base, lag=2.0, max_landmarks=4)
-    assert smoother.settings == SmootherOptions(lag=2.0, commit_every=3, max_landmarks=4)
+    smoother = FixedLagSmoother(robot, settings=base, lag=2.0)
+    assert smoother.settings == SmootherOptions(lag=2.0, commit_every=3)
     with pytest.raises(TypeError, match="settings"):
         FixedLagSmoother(robot, settings={"lag": 2.0})  # type: ignore[arg-type]
 
 
-def test_unknown_keywords_are_refused(robot: Robot) -> None:
+def test_unknown_and_misspelled_options_are_refused_by_name(robot: Robot) -> None:
     with pytest.raises(TypeError, match="backend"):
-        FixedLagSmoother(robot, backend="batch")
+        FixedLagSmoother(robot, backend="batch")  # type: ignore[call-arg]
     with pytest.raises(TypeError, match="landmark_sigmas"):
-        FixedLagSmoother(robot, landmark_sigmas=3.0)
+        SmootherOptions(landmark_sigmas=3.0)  # type: ignore[call-arg]
+    # the settings are a record, not keywords of the smoother
+    with pytest.raises(TypeError, match="max_landmarks"):
+        FixedLagSmoother(robot, max_landmarks=4)  # type: ignore[call-arg]

@@ -11,6 +11,7 @@ import pytest
 
 from apcc_graph.cli import main
 from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.io import load_robot
 from apcc_graph.simulation.stream import SimulatedStream
 
@@ -31,7 +32,8 @@ def _state(sm: FixedLagSmoother) -> dict[str, int]:
 def test_a_long_stream_keeps_bounded_state() -> None:
     robot = load_robot(ROBOT)
     stream = SimulatedStream(robot, noise_px=1.0, outlier_fraction=0.1, seed=5, n_points=3000)
-    sm = FixedLagSmoother(robot, lag=1.0, theta0=stream.thetas(0), uncertainty=False)
+    sm = FixedLagSmoother(robot, lag=1.0, theta0=stream.thetas(0),
+                          settings=SmootherOptions(uncertainty=False))
     truth: dict[int, np.ndarray] = {}
     returned, errors, sizes = [], [], {}
     for f in range(FRAMES):

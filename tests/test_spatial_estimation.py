@@ -16,10 +16,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from apcc_graph import estimate
+from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.bends import start_vector
 from apcc_graph.estimation.blackout import BlackoutWarning
 from apcc_graph.estimation.graph import camera_chain, camera_observations, limit_factor
+from apcc_graph.estimation.options import BatchOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.factors.projection import ProjectionFactor, frame_key
 from apcc_graph.factors.reduced_system import reduced_system
@@ -205,7 +208,8 @@ def test_self_calibration_of_a_spatial_robot(robot) -> None:
     seq = _wrong_models(sim.sequence)
     sigmas = (0.05, math.radians(5.0))
     start = dict(theta0=seq.thetas[0], psi0=seq.psis[0], spatial=True)
-    est = estimate(seq, method="batch", calibrate=True, calibration_sigmas=sigmas, **start)
+    est = estimate(seq, method="batch", **start,
+                   settings=BatchOptions(calibrate=True, calibration_sigmas=sigmas))
     found = np.array([[s.k, s.delta_max] for s in est.robot.segments])
     truth = np.array([[s.k, s.delta_max] for s in robot.segments])
     assert np.all(np.abs(found - truth) < 4.0 * est.calibration_sigmas), (found, truth)
@@ -319,14 +323,20 @@ def test_spatial_api_refusals(robot) -> None:
         estimate(seq, theta0=theta0, psi0=[0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="psi0 without theta0"):
         estimate(seq, spatial=True, psi0=[0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="psi0 is given but spatial is False"):
+    with pytest.raises(ValueError, match="psi0 is given but the bending planes are fixed"):
         FixedLagSmoother(robot, theta0=theta0, psi0=[0.0, 0.0, 0.0])
     with pytest.raises(TypeError, match="vision"):  # the epipolar back end is gone
         estimate(seq, theta0=theta0, spatial=True, vision="epipolar")
     with pytest.raises(ValueError, match=r"psi0 has shape \(2,\)"):
         estimate(seq, theta0=theta0, psi0=[0.0, 1.0], spatial=True)
     with pytest.raises(ValueError, match="initial has shape"):
-        estimate(seq, theta0=theta0, spatial=True, initial=np.zeros((5, 3)))
+        batch_estimate(seq, theta0=theta0, spatial=True, initial=np.zeros((5, 3)))
+    with pytest.raises(TypeError, match="calibrate"):  # the batch's option, in its record
+        estimate(seq, theta0=theta0, spatial=True, calibrate=True)
+    with pytest.raises(TypeError, match="calibration"):  # misspelled: refused by name
+        BatchOptions(calibration=True)
+    with pytest.raises(TypeError, match="expected BatchOptions for method 'batch'"):
+        estimate(seq, theta0=theta0, spatial=True, settings=SmootherOptions(lag=0.5))
 
 
 def test_a_spatial_robot_is_reacquired_after_every_camera_went_blind(robot) -> None:

@@ -129,7 +129,7 @@ def test_find_start_refuses_bad_arguments(one_second: Simulation) -> None:
 
 def test_estimate_without_a_start_reports_where_it_found_it() -> None:
     sim = _simulate(60, seed=4)
-    est = apcc_graph.estimate(sim.sequence, method="batch", threshold_px=1.0)
+    est = apcc_graph.estimate(sim.sequence, method="batch", noise_px=1.0)
     assert est.start is not None and est.start.n_frames == 31
     truth = sim.sequence.thetas
     assert np.all(np.abs(est.start.theta0 - truth[0]) < 3.0 * est.start.sigma0)

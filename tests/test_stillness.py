@@ -136,7 +136,8 @@ def frozen() -> tuple:
 
 
 def _run(robot, seq, **options) -> tuple[list[SmootherFrame], list[SmootherFrame], int]:
-    smoother = FixedLagSmoother(robot, lag=1.0, theta0=seq.thetas[0], **options)
+    smoother = FixedLagSmoother(robot, lag=1.0, theta0=seq.thetas[0],
+                                settings=SmootherOptions(**options))
     now, popped = [], []
     for f in range(seq.n_frames):
         now.append(smoother.update(seq.frame(f)))

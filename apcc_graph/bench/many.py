@@ -46,7 +46,7 @@ def run_many_benchmark(sequences: int = 16, frames: int = 600, method: str = "ba
     """Time ``sequences`` recordings of ``frames`` frames serially and on ``workers`` Dask
     workers (see the module docstring)."""
     model = load_robot(robot)
-    options = {"theta0": "truth", "threshold_px": 1.0}
+    options = {"theta0": "truth", "noise_px": 1.0}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         folders = []

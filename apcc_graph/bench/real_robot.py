@@ -94,7 +94,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
                 start = time.perf_counter()
                 est = estimate(seq, method=method, spatial=True, theta0=floor.thetas[0],
                                psi0=floor.psis[0], theta0_sigma=start_sigma,
-                               threshold_px=noise_px)
+                               noise_px=noise_px)
                 errors.setdefault((version, method), []).append(
                     tip_errors(model.forward(est.thetas, est.psis), seq.truth_tips))
                 seconds[version, method] = (seconds.get((version, method), 0.0)

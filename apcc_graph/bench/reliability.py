@@ -122,7 +122,7 @@ def run_case(case: FaultCase, undisturbed: FloatArray | None = None) -> tuple[Fa
             threadpool_limits(limits=1, user_api="blas"):
         warnings.simplefilter("always")
         result = estimate(seq, method="smoother", theta0=case.theta0,
-                          theta0_sigma=THETA0_SIGMA, threshold_px=NOISE_PX, progress=False)
+                          theta0_sigma=THETA0_SIGMA, noise_px=NOISE_PX, progress=False)
     errors = result.errors(seq.thetas)
     sigmas = sequence_bound(case.simulation, NOISE_PX, THETA0_SIGMA).sigmas
     seen = np.all(np.isfinite(sigmas), axis=1)

@@ -40,12 +40,16 @@ from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.evaluation.sequence_bound import LagBound, SequenceBound, lag_bound, sequence_bound
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms, window_rms
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.simulator import Simulation, simulate
+
+QUICK = SmootherOptions(uncertainty=False)
+"""The smoother without marginal sigmas: the benches that time it or only read its angles."""
 
 FPS = 30.0
 LAG = 1.0
@@ -200,7 +204,7 @@ def _drift(robot: Robot, frames: int, seed: int, progress: bool
     (radians), and the median and 95th percentile of its update time (seconds)."""
     seq = room_simulation(robot, frames, 0.1, seed).sequence
     assert seq.thetas is not None
-    sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
+    sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], settings=QUICK)
     thetas, _, times = _stream(sm, seq, progress, "long run")
     err = thetas - seq.thetas
     return (float(rms(err[100:400], axis=None)), float(rms(err[-300:], axis=None)),
@@ -212,7 +216,7 @@ def _memory(robot: Robot, frames: int, seed: int, progress: bool) -> tuple[float
     finished frames are taken out, as a streaming user would."""
     seq = room_simulation(robot, frames, 0.1, seed).sequence
     assert seq.thetas is not None
-    sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], uncertainty=False)
+    sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], settings=QUICK)
     rss_small = float("nan")
     for f in tqdm(range(frames), desc="memory", disable=not progress, leave=False):
         sm.update(seq.frame(f))

@@ -126,31 +126,32 @@ def _spatial_options(args: argparse.Namespace) -> dict:
 
 def _options(args: argparse.Namespace) -> dict:
     """The estimator's keyword arguments from the command line, checked."""
+    from apcc_graph.estimation.options import BatchOptions
+    from apcc_graph.estimation.smoother_options import SmootherOptions
+
     options: dict = {"progress": True, **_spatial_options(args)}
     if args.method == "smoother":
         if not (args.lag > 0.0 and math.isfinite(args.lag)):
             raise UserError(f"--lag {args.lag!r}: expected a positive number of seconds")
-        options["lag"] = args.lag
+        options["settings"] = SmootherOptions(lag=args.lag)
     elif args.lag is not None and args.lag != DEFAULT_LAG:
         raise UserError("--lag applies to --method smoother only")
     if args.theta0_sigma_deg is not None and args.theta0_deg is None:
         raise UserError("--theta0-sigma-deg applies to a given start (--theta0-deg); without "
                         "one the start is found from the images, with its own sigma")
-    if args.method != "chain":
-        if args.theta0_deg is not None:
-            sigma = 0.1 if args.theta0_sigma_deg is None else args.theta0_sigma_deg
-            if not (math.isfinite(sigma) and sigma > 0.0):
-                raise UserError(f"--theta0-sigma-deg {sigma!r}: expected a positive number "
-                                "of degrees")
-            options["theta0_sigma"] = math.radians(sigma)
-        if not (math.isfinite(args.noise_px) and args.noise_px > 0.0):
-            raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of "
-                            "pixels")
-        options["threshold_px"] = args.noise_px
+    if args.method != "chain" and args.theta0_deg is not None:
+        sigma = 0.1 if args.theta0_sigma_deg is None else args.theta0_sigma_deg
+        if not (math.isfinite(sigma) and sigma > 0.0):
+            raise UserError(f"--theta0-sigma-deg {sigma!r}: expected a positive number "
+                            "of degrees")
+        options["theta0_sigma"] = math.radians(sigma)
+    if not (math.isfinite(args.noise_px) and args.noise_px > 0.0):
+        raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of pixels")
+    options["noise_px"] = args.noise_px
     if args.calibrate:
         if args.method != "batch":
             raise UserError("--calibrate: self-calibration runs in --method batch")
-        options["calibrate"] = True
+        options["settings"] = BatchOptions(calibrate=True)
     return options
 
 

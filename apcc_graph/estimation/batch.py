@@ -18,7 +18,6 @@ from ``gtsam.Marginals`` at the solution. The solver is
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence as SequenceOf
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -33,27 +32,28 @@ from apcc_graph.estimation.batch_solve import (
 )
 from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
 from apcc_graph.estimation.chain import chain_vectors
-from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.options import INITS, GraphOptions, Robustness
 from apcc_graph.estimation.result import Estimate
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 
-INITS = ("smoother", "chain")
-
 
 def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
                      start: tuple[ArrayLike | None, ArrayLike | None],
                      initial: ArrayLike | None, init: str, options: GraphOptions,
-                     progress: bool) -> tuple[FloatArray, NDArray[np.str_]]:
+                     robustness: Robustness | None, progress: bool
+                     ) -> tuple[FloatArray, NDArray[np.str_]]:
     """``(F, dim)`` initial frame vectors and the status of each (``initial`` given, or from
     ``init``: the chain or the fixed-lag smoother, started at ``start = (theta0, psi0)``)."""
     shape = (sequence.n_frames, bending.dim)
     if initial is None and init == "smoother":
         first = smoother_estimate(sequence, theta0=start[0], psi0=start[1], options=options,
-                                  uncertainty=False, progress=progress,
+                                  settings=SmootherOptions(uncertainty=False),
+                                  robustness=robustness, progress=progress,
                                   spatial=bending.is_free)
         return bending.vector(first.thetas, first.psis), first.status
     if initial is None:
@@ -77,7 +77,7 @@ def batch_estimate(
     marginals: bool = True,
     progress: bool = False,
     init: str = "chain",
-    schedule: SequenceOf[float] | None = None,
+    robustness: Robustness | None = None,
     calibrate: bool = False,
     calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0)),
     psi0: ArrayLike | None = None,
@@ -99,7 +99,8 @@ def batch_estimate(
             ``"chain"`` (default: the paper's chained estimate, fast; it drifts, and
             the graduated non-convexity of the outlier decisions brings the batch back from
             there) or ``"smoother"`` (the fixed-lag smoother: closer, slower).
-        schedule: the GNC continuation of the outlier decisions.
+        robustness: how outliers are decided (:class:`Robustness`: the inlier threshold and
+            the GNC continuation).
         calibrate: self-calibration: estimate each segment's k and
             delta_max jointly with the bends, with priors of ``calibration_sigmas``
             (k, delta_max in radians) around the robot's values. The estimate's ``robot``
@@ -123,8 +124,8 @@ def batch_estimate(
     bending = parameterisation(robot, spatial)
     x0 = start_vector(robot, bending, theta0, psi0)
     initial, status = _initial_vectors(sequence, bending, x0, (theta0, psi0), initial, init,
-                                       options, progress)
-    found = projection_solve(sequence, initial, x0, options, schedule, max_iterations,
+                                       options, robustness, progress)
+    found = projection_solve(sequence, initial, x0, options, robustness, max_iterations,
                              marginals=marginals, progress=progress, calibrate=calibrate,
                              calibration_sigmas=calibration_sigmas, bending=bending)
     if found.segments is not None:
@@ -135,5 +136,5 @@ def batch_estimate(
                             calibration_sigmas=found.calibration_sigmas)
 
 
-__all__ = ["BatchReport", "GraphOptions", "ProjectionSolution", "batch_estimate",
+__all__ = ["BatchReport", "GraphOptions", "ProjectionSolution", "Robustness", "batch_estimate",
            "build_terms", "marginal_blocks", "optimise", "projection_solve"]

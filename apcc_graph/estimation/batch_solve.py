@@ -29,7 +29,7 @@ from apcc_graph.estimation.graph import (
     thetas_from,
     values_from,
 )
-from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.robust import gnc_start
 from apcc_graph.factors.projection import calibrated, calibration_key
 from apcc_graph.model.arrays import FloatArray
@@ -178,7 +178,7 @@ class ProjectionSolution:
 
 
 def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray | None,
-                     options: GraphOptions, schedule: SequenceOf[float] | None = None,
+                     options: GraphOptions, robustness: Robustness | None = None,
                      max_iterations: int = 30, max_final_rounds: int = 4,
                      marginals: bool = True, progress: bool = False,
                      calibrate: bool = False,
@@ -191,10 +191,11 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         sequence: the sequence.
         initial: ``(F, dim)`` initial frame vectors of ``bending`` (radians).
         theta0: ``(dim,)`` start prior's mean, or ``None``.
-        options: graph options.
-        schedule: the GNC continuation (values of ``mu`` ending with ``inf``); default
-            :func:`~apcc_graph.estimation.robust.gnc_start`, fitted to the residuals at
-            ``initial``.
+        options: the measurement model.
+        robustness: the outlier threshold and the GNC continuation (default
+            :class:`~apcc_graph.estimation.options.Robustness`: the schedule
+            :func:`~apcc_graph.estimation.robust.gnc_start` fits to the residuals at
+            ``initial``).
         max_iterations: Levenberg-Marquardt iterations per stage.
         max_final_rounds: most repetitions of the last stage while decisions change.
         marginals: compute marginal sigmas (otherwise NaN).
@@ -203,10 +204,9 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
             ``calibration_sigmas`` (k, radians) around the robot's values.
         bending: the parameterisation (default: the planar robot's fixed planes).
     """
-    if schedule is not None:
-        schedule = list(schedule)
-        if not schedule or not math.isinf(schedule[-1]):
-            raise ValueError(f"schedule = {schedule!r}: expected values ending with inf")
+    robustness = Robustness() if robustness is None else robustness
+    inlier_sigmas = robustness.inlier_sigmas
+    schedule = None if robustness.schedule is None else list(robustness.schedule)
     robot = sequence.robot
     bending = Bending.fixed(robot.segments) if bending is None else bending
     frames = range(sequence.n_frames)
@@ -222,7 +222,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         t.measure(thetas, robust=True)
     if schedule is None:
         schedule = gnc_start(np.concatenate([n for t in terms for n in t.norms] or [[]]),
-                             options.inlier_sigmas)
+                             inlier_sigmas)
     stages = schedule + [math.inf] * (max_final_rounds - 1)
     bar.total = len(stages) + 2
     bar.update()
@@ -233,7 +233,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
             segments = None if cal is None else _segments(robot, cal)
             for t in terms:
                 t.measure(thetas, segments=segments)
-        changed = sum(t.set_weights(options.inlier_sigmas, mu) for t in terms)
+        changed = sum(t.set_weights(inlier_sigmas, mu) for t in terms)
         if stage >= len(schedule) and changed == 0:
             break
         # Intermediate stages only lead the weights; the truncated quadratic is solved tightly.

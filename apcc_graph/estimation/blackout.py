@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from apcc_graph.estimation.batch_solve import projection_solve
 from apcc_graph.estimation.chain import chain_vectors
-from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import Rows
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
@@ -78,6 +78,7 @@ class Reacquisition:
     Args:
         robot: the robot.
         options: the smoother's graph options (the start prior is replaced).
+        inlier_sigmas: the smoother's outlier threshold.
         bending: the smoother's parameterisation.
         theta0: the smoother's estimate of the first kept frame (its frame vector, radians).
         sigma: the start prior of the batch (radians; at least :data:`MIN_SIGMA`).
@@ -85,6 +86,7 @@ class Reacquisition:
 
     robot: Robot
     options: GraphOptions
+    inlier_sigmas: float
     bending: Bending
     theta0: FloatArray
     sigma: float
@@ -119,5 +121,6 @@ class Reacquisition:
                             None if any(b is None for b in bases) else np.array(bases))
         options = replace(self.options, theta0_sigma=max(self.sigma, MIN_SIGMA))
         start, _, _ = chain_vectors(sequence, self.bending, self.theta0, options.threshold_px)
-        found = projection_solve(sequence, start, self.theta0, options, bending=self.bending)
+        found = projection_solve(sequence, start, self.theta0, options,
+                                 Robustness(self.inlier_sigmas), bending=self.bending)
         return found.x, found.blocks.reshape(len(found.x), -1), found.sigmas

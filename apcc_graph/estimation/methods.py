@@ -3,17 +3,27 @@
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from os import PathLike
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from apcc_graph.estimation.options import BatchOptions, ChainOptions, GraphOptions, Robustness
 from apcc_graph.estimation.result import Estimate, StartReport
+from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.sequence import Sequence
 
 METHODS = ("chain", "batch", "smoother")
 """Estimators available."""
+
+MethodOptions = ChainOptions | BatchOptions | SmootherOptions
+"""A method's own options record."""
+
+RECORDS: dict[str, type] = {"chain": ChainOptions, "batch": BatchOptions,
+                            "smoother": SmootherOptions}
+"""Each method's options record."""
 
 
 class ObservationWarning(UserWarning):
@@ -41,9 +51,11 @@ def check_observations(sequence: Sequence) -> None:
 
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
-             theta0_sigma: float | None = None, threshold_px: float | None = None,
-             spatial: bool = False, psi0: ArrayLike | None = None, **options: Any) -> Estimate:
-    """Estimate every frame's segment angles.
+             theta0_sigma: float | None = None, *, psi0: ArrayLike | None = None,
+             spatial: bool = False, noise_px: float | None = None,
+             graph: GraphOptions | None = None, robustness: Robustness | None = None,
+             settings: MethodOptions | None = None, progress: bool = False) -> Estimate:
+    """Estimate every frame's segment bends.
 
     Args:
         sequence: the sequence; ground-truth columns are never read.
@@ -54,24 +66,31 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             more if the robot barely moved (:mod:`~apcc_graph.estimation.start_search`), and
             the estimate's ``start`` says where and how well.
         theta0_sigma: standard deviation of the prior on ``theta0`` (radians; default
-            :class:`~apcc_graph.estimation.options.GraphOptions`' 0.1 deg); batch and
-            smoother only (the chain starts exactly at ``theta0``), and only with ``theta0``.
-        threshold_px: the tracks' pixel noise (pixels, default 1); for the chain, its RANSAC
-            inlier threshold.
+            ``graph.theta0_sigma``, 0.1 deg); batch and smoother only (the chain starts
+            exactly at ``theta0``), and only with ``theta0``.
+        psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` and
+            ``theta0`` only.
         spatial: the robot bends in 3-D: estimate every segment's bending plane ``psi`` too
             (the estimate's ``psis`` and ``psi_sigmas``), in bending vectors smooth through
             straight (:mod:`~apcc_graph.estimation.bends`); every method, and the unknown
             start too (the search then finds the planes at frame 0).
-        psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` and
-            ``theta0`` only.
-        **options: passed to the estimator (:func:`~apcc_graph.estimation.chain.chain_estimate`,
-            :func:`~apcc_graph.estimation.batch.batch_estimate` or
-            :func:`~apcc_graph.estimation.smoother_runs.smoother_estimate`); e.g.
-            ``calibrate=True``, self-calibration of each segment's k and delta_max (batch).
+        noise_px: the tracks' pixel noise (pixels; default ``graph.threshold_px``, 1); for
+            the chain, its RANSAC inlier threshold.
+        graph: the measurement model (:class:`~apcc_graph.estimation.options.GraphOptions`:
+            noise, priors, joint limits, tracks).
+        robustness: how outliers are decided
+            (:class:`~apcc_graph.estimation.options.Robustness`); batch and smoother.
+        settings: the method's own options: :class:`~apcc_graph.estimation.options.
+            ChainOptions`, :class:`~apcc_graph.estimation.options.BatchOptions` (e.g.
+            ``BatchOptions(calibrate=True)``, self-calibration of each segment's k and
+            delta_max) or :class:`~apcc_graph.estimation.smoother_options.SmootherOptions`
+            (e.g. the lag); default the record's defaults.
+        progress: show progress bars.
 
     Raises:
         TypeError: ``sequence`` is not a :class:`~apcc_graph.model.sequence.Sequence` (a path
-            must be loaded first, with ``apcc_graph.load_sequence``).
+            must be loaded first, with ``apcc_graph.load_sequence``); an options record of
+            the wrong kind (named), or an argument this function does not take (named).
         ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
             ``theta_max`` (radians); a sequence without a single observation;
             ``theta0_sigma`` or ``psi0`` without ``theta0``; ``psi0`` without ``spatial``.
@@ -87,6 +106,9 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         raise TypeError(f"sequence: expected a Sequence, got {type(sequence).__name__}{hint}")
     if method not in METHODS:
         raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
+    graph, robustness, settings = _records(method, graph, robustness, settings)
+    if noise_px is not None:
+        graph = replace(graph, threshold_px=float(noise_px))
     if theta0 is not None:
         sequence.robot.configuration(theta0)
     check_observations(sequence)
@@ -99,65 +121,73 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             raise ValueError(f"{'theta0_sigma' if theta0_sigma is not None else 'psi0'} "
                              "without theta0: with an unknown start the search finds the "
                              "start and its uncertainty itself; give theta0 too, or neither")
-        theta0, theta0_sigma, start = _unknown_start(sequence, method, threshold_px, spatial,
-                                                     options)
+        theta0, theta0_sigma, start = _unknown_start(sequence, method, graph, robustness,
+                                                     spatial)
         psi0 = start.psi0
-    if spatial:
-        options.update(spatial=True, psi0=psi0)
-    if method == "chain" and threshold_px is not None:
-        options["threshold_px"] = float(threshold_px)
-    if method in ("batch", "smoother") and (theta0_sigma is not None
-                                            or threshold_px is not None):
-        from dataclasses import replace
-
-        from apcc_graph.estimation.options import GraphOptions
-
-        changes: dict[str, Any] = {}
-        if theta0_sigma is not None:
-            changes["theta0_sigma"] = float(theta0_sigma)
-        if threshold_px is not None:
-            changes["threshold_px"] = float(threshold_px)
-        options["options"] = replace(options.get("options") or GraphOptions(), **changes)
-    result = _run(sequence, method, theta0, options)
-    if start is None:
-        return result
-    from dataclasses import replace as with_start
-
-    return with_start(result, start=start)
+    if theta0_sigma is not None:
+        graph = replace(graph, theta0_sigma=float(theta0_sigma))
+    result = _run(sequence, method, theta0, psi0, spatial, graph, robustness, settings,
+                  progress)
+    return result if start is None else replace(result, start=start)
 
 
-def _run(sequence: Sequence, method: str, theta0: ArrayLike, options: dict[str, Any]
-         ) -> Estimate:
-    """The estimator ``method`` from ``theta0``."""
-    if method == "chain":
+def _records(method: str, graph: GraphOptions | None, robustness: Robustness | None,
+             settings: MethodOptions | None
+             ) -> tuple[GraphOptions, Robustness, MethodOptions]:
+    """The options records, defaulted, each checked to be of its kind (and ``settings`` of
+    ``method``'s)."""
+    wanted = RECORDS[method]
+    for name, value, kind in (("graph", graph, GraphOptions),
+                              ("robustness", robustness, Robustness),
+                              ("settings", settings, wanted)):
+        if value is not None and not isinstance(value, kind):
+            owner = next((m for m, k in RECORDS.items() if isinstance(value, k)), None)
+            why = f" (the options of method {owner!r})" if owner else ""
+            raise TypeError(f"{name}: expected {kind.__name__} for method {method!r}, got "
+                            f"{type(value).__name__}{why}")
+    return (graph or GraphOptions(), robustness or Robustness(), settings or wanted())
+
+
+def _run(sequence: Sequence, method: str, theta0: ArrayLike, psi0: ArrayLike | None,
+         spatial: bool, graph: GraphOptions, robustness: Robustness, settings: MethodOptions,
+         progress: bool) -> Estimate:
+    """The estimator ``method`` from ``theta0`` (and ``psi0``)."""
+    if isinstance(settings, ChainOptions):
         from apcc_graph.estimation.chain import chain_estimate
 
-        return chain_estimate(sequence, theta0=theta0, **options)
-    if method == "batch":
+        return chain_estimate(sequence, theta0, graph.threshold_px, settings.confidence,
+                              settings.seed, progress, psi0=psi0, spatial=spatial)
+    if isinstance(settings, BatchOptions):
         from apcc_graph.estimation.batch import batch_estimate
 
-        return batch_estimate(sequence, theta0=theta0, **options)
-    if method == "smoother":
-        from apcc_graph.estimation.smoother_runs import smoother_estimate
+        return batch_estimate(sequence, theta0, options=graph,
+                              max_iterations=settings.max_iterations,
+                              marginals=settings.marginals, progress=progress,
+                              init=settings.init, robustness=robustness,
+                              calibrate=settings.calibrate,
+                              calibration_sigmas=tuple(settings.calibration_sigmas),
+                              psi0=psi0, spatial=spatial)
+    from apcc_graph.estimation.smoother_runs import smoother_estimate
 
-        return smoother_estimate(sequence, theta0=theta0, **options)
-    raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
+    return smoother_estimate(sequence, theta0, options=graph, settings=settings,
+                             robustness=robustness, progress=progress, psi0=psi0,
+                             spatial=spatial)
 
 
-def _unknown_start(sequence: Sequence, method: str, threshold_px: float | None,
-                   spatial: bool, options: dict[str, Any]
-                   ) -> tuple[Any, float | None, StartReport]:
-    """The start found from the data (:mod:`~apcc_graph.estimation.start_search`): the
-    configuration, the prior the estimator then holds it with, and the report.
+def _unknown_start(sequence: Sequence, method: str, graph: GraphOptions,
+                   robustness: Robustness, spatial: bool
+                   ) -> tuple[FloatArray, float | None, StartReport]:
+    """The start found from the data (:mod:`~apcc_graph.estimation.start_search`).
+
+    Returns:
+        The configuration (bends at frame 0), the prior the estimator then holds it with, and
+        the :class:`~apcc_graph.estimation.result.StartReport` (with the planes, if spatial).
 
     The batch keeps the search's weak prior (vision alone, over the whole recording), so a
     start the images tell at all is enough for it; the smoother (which holds the start with the
     search's largest sigma) and the chain (which starts exactly there) cannot revisit it, so
     they wait until the images tell it to :data:`~apcc_graph.estimation.start_search.FIRM_SIGMA`.
     """
-    from dataclasses import replace
-
-    from apcc_graph.estimation.options import GraphOptions
     from apcc_graph.estimation.start_search import (
         FIRM_SIGMA,
         MAX_SIGMA,
@@ -165,12 +195,9 @@ def _unknown_start(sequence: Sequence, method: str, threshold_px: float | None,
         start_from_data,
     )
 
-    graph = options.get("options") or GraphOptions()
-    if threshold_px is not None:
-        graph = replace(graph, threshold_px=float(threshold_px))
     search = start_from_data(sequence, options=graph,
                              max_sigma=MAX_SIGMA if method == "batch" else FIRM_SIGMA,
-                             spatial=spatial)
+                             spatial=spatial, robustness=robustness)
     if method == "batch":
         sigma: float | None = PRIOR_SIGMA
     elif method == "smoother":

@@ -1,15 +1,25 @@
-"""How the factor graph is built: one frozen options record shared by the batch and the
-smoother."""
+"""What a user sets for an estimator: one frozen, validated record per concern.
+
+- :class:`GraphOptions`, the measurement model: the pixel noise, the priors (start, motion,
+  joint limits) and how tracks enter the graph; shared by every estimator;
+- :class:`Robustness`: how outliers are decided (the inlier threshold, the batch's graduated
+  non-convexity);
+- one record per method: :class:`ChainOptions`, :class:`BatchOptions` and
+  :class:`~apcc_graph.estimation.smoother_options.SmootherOptions`.
+
+:func:`apcc_graph.estimate` takes them by name; a misspelled field is refused by the record.
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True)
 class GraphOptions:
-    """How the factor graph is built (shared by the batch optimiser and the smoother).
+    """The measurement model: how the factor graph is built (every estimator).
 
     Attributes:
         threshold_px: the pixel noise, standard deviation per coordinate (pixels).
@@ -18,9 +28,6 @@ class GraphOptions:
             leaves it out. Weak by default (5 deg between frames at 30 fps): it only carries
             frames the cameras do not constrain.
         limit_sigma: softness of the joint limits (radians).
-        inlier_sigmas: an observation whose whitened reprojection error (pixel-noise units,
-            2 degrees of freedom) at its track's point exceeds this is an outlier (truncated
-            least squares); 3.5 keeps 99.8% of true observations.
         frames_per_chunk: tracks starting within this many frames of each other share one
             gtsam factor (one Python callback per chunk and linearisation).
         min_track_rows: tracks seen in fewer frames are left out (one observation of an
@@ -34,13 +41,12 @@ class GraphOptions:
     theta0_sigma: float = math.radians(0.1)
     motion_sigma: float | None = 0.5
     limit_sigma: float = math.radians(1.0)
-    inlier_sigmas: float = 3.5
     frames_per_chunk: int = 15
     min_track_rows: int = 2
     max_track_frames: int | None = 150
 
     def __post_init__(self) -> None:
-        for name in ("threshold_px", "theta0_sigma", "limit_sigma", "inlier_sigmas"):
+        for name in ("threshold_px", "theta0_sigma", "limit_sigma"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"GraphOptions.{name} = {value!r}: expected a finite value > 0")
@@ -51,3 +57,89 @@ class GraphOptions:
         if self.frames_per_chunk < 1 or self.min_track_rows < 2:
             raise ValueError("GraphOptions: frames_per_chunk >= 1 and min_track_rows >= 2 "
                              f"expected, got {self.frames_per_chunk}, {self.min_track_rows}")
+
+
+@dataclass(frozen=True)
+class Robustness:
+    """How outliers are decided (docs/estimation.md, "Outliers").
+
+    Attributes:
+        inlier_sigmas: an observation whose whitened reprojection error (pixel-noise units,
+            2 degrees of freedom) at its track's point exceeds this is an outlier (truncated
+            least squares); 3.5 keeps 99.8% of true observations.
+        schedule: the batch's graduated non-convexity: the values of ``mu`` of its stages,
+            ending with ``inf`` (the truncated quadratic itself); ``None`` fits one to the
+            residuals at the batch's start.
+    """
+
+    inlier_sigmas: float = 3.5
+    schedule: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.inlier_sigmas) and self.inlier_sigmas > 0.0):
+            raise ValueError(f"Robustness.inlier_sigmas = {self.inlier_sigmas!r}: expected a "
+                             "finite value > 0 (pixel-noise units)")
+        if self.schedule is not None:
+            schedule = tuple(float(mu) for mu in self.schedule)
+            if not schedule or not math.isinf(schedule[-1]) or any(
+                    not mu > 0.0 for mu in schedule):
+                raise ValueError(f"Robustness.schedule = {self.schedule!r}: expected positive "
+                                 "values of mu ending with inf")
+            object.__setattr__(self, "schedule", schedule)
+
+
+@dataclass(frozen=True)
+class ChainOptions:
+    """The paper's chained estimator (``method="chain"``).
+
+    Attributes:
+        confidence: RANSAC confidence.
+        seed: random seed of the RANSAC sampling.
+    """
+
+    confidence: float = 0.999
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.confidence < 1.0:
+            raise ValueError(f"ChainOptions.confidence = {self.confidence!r}: expected a "
+                             "probability strictly between 0 and 1")
+
+
+INITS = ("chain", "smoother")
+"""Where the batch's initial values come from."""
+
+
+@dataclass(frozen=True)
+class BatchOptions:
+    """The batch optimiser (``method="batch"``).
+
+    Attributes:
+        init: where the initial values come from: ``"chain"`` (the paper's chained estimate,
+            fast; it drifts, and the graduated non-convexity of the outlier decisions brings
+            the batch back from there) or ``"smoother"`` (the fixed-lag smoother: closer,
+            slower).
+        max_iterations: Levenberg-Marquardt iterations per stage.
+        marginals: compute marginal standard deviations (otherwise NaN).
+        calibrate: self-calibration: estimate each segment's k and delta_max jointly with the
+            bends, with priors of ``calibration_sigmas`` around the robot's values.
+        calibration_sigmas: those priors' standard deviations (k, delta_max in radians).
+    """
+
+    init: str = "chain"
+    max_iterations: int = 30
+    marginals: bool = True
+    calibrate: bool = False
+    calibration_sigmas: Sequence[float] = field(default=(0.05, math.radians(5.0)))
+
+    def __post_init__(self) -> None:
+        if self.init not in INITS:
+            raise ValueError(f"BatchOptions.init = {self.init!r}: expected one of {INITS}")
+        if self.max_iterations < 1:
+            raise ValueError(f"BatchOptions.max_iterations = {self.max_iterations!r}: expected "
+                             "at least 1")
+        sigmas = tuple(float(v) for v in self.calibration_sigmas)
+        if len(sigmas) != 2 or not all(math.isfinite(v) and v > 0.0 for v in sigmas):
+            raise ValueError(f"BatchOptions.calibration_sigmas = {self.calibration_sigmas!r}: "
+                             "expected two finite values > 0 (k, delta_max in radians)")
+        object.__setattr__(self, "calibration_sigmas", sigmas)

@@ -8,7 +8,7 @@ long) all its observations enter one projection factor for good (:meth:`Projecti
 
 Outlier decisions: a piece seen for the first time in the live factor, and a piece being
 committed, have their point triangulated robustly at the current estimates and each observation
-is judged against it (truncated quadratic, ``GraphOptions.inlier_sigmas``); the observations of
+is judged against it (truncated quadratic, ``Robustness.inlier_sigmas``); the observations of
 a new frame were judged by its initial guess. Each live piece's point, from the last
 linearisation, starts the next frame's initial guess (:meth:`ProjectionTracks.known_rows`).
 """
@@ -55,6 +55,7 @@ class ProjectionTracks:
             ``point_iterations``).
         window: the smoother's window (the estimates the pieces are judged at).
         bending: the parameterisation of the frames' vectors.
+        inlier_sigmas: the outlier threshold (whitened residual norm, pixel-noise units).
 
     Attributes:
         live: the live pieces.
@@ -64,8 +65,10 @@ class ProjectionTracks:
     """
 
     def __init__(self, robot: Robot, options: GraphOptions,
-                 settings: SmootherOptions, window: Window, bending: Bending) -> None:
+                 settings: SmootherOptions, window: Window, bending: Bending,
+                 inlier_sigmas: float) -> None:
         self.robot = robot
+        self.inlier_sigmas = inlier_sigmas
         self.dim = bending.dim  # a frame's vector
         self.options = options
         self.settings = settings
@@ -115,7 +118,7 @@ class ProjectionTracks:
         first, last = int(obs.frames.min()), int(obs.frames.max())
         factor = ProjectionFactor(obs, self.chain(cam, first, last), self.dim)
         norms = factor.residual_norms(self.span(first, last), robust=True)
-        factor.weights[:] = gnc_tls_weights(norms, self.options.inlier_sigmas, math.inf)
+        factor.weights[:] = gnc_tls_weights(norms, self.inlier_sigmas, math.inf)
         self.count(len(obs), int(np.sum(factor.weights == 0.0)))
         if not factor.weights.any():
             return
@@ -188,7 +191,7 @@ class ProjectionTracks:
                                for t in np.flatnonzero(new)])
         norms, found_points = robust_residual_norms(part, chain, self.span(first, last), first,
                                                     np.ones(len(part)))
-        decided = gnc_tls_weights(norms, self.options.inlier_sigmas, math.inf)
+        decided = gnc_tls_weights(norms, self.inlier_sigmas, math.inf)
         weights[rows] = decided
         self.live.set_weights(cam, index[rows], decided)
         for piece, point in zip(part.ids.tolist(), found_points, strict=True):

@@ -41,7 +41,7 @@ from apcc_graph.estimation.front_end import front_end_guess
 from apcc_graph.estimation.graph import frame_key
 from apcc_graph.estimation.initial_guess import predict, refine
 from apcc_graph.estimation.landmarks import Additions, Landmarks
-from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
 from apcc_graph.estimation.smoother_options import SmootherOptions, smoother_settings
 from apcc_graph.estimation.start_check import check_start
@@ -68,7 +68,7 @@ class FixedLagSmoother:
     Args:
         robot: the robot model.
         lag: window length (seconds); default ``settings.lag`` (1 s).
-        options: graph construction (:class:`~apcc_graph.estimation.options.GraphOptions`).
+        options: the measurement model (:class:`~apcc_graph.estimation.options.GraphOptions`).
         theta0: ``(S,)`` starting configuration in radians (default straight), held by a prior
             of ``options.theta0_sigma``.
         settings: the smoother's options
@@ -78,8 +78,9 @@ class FixedLagSmoother:
             ``psi_sigmas``.
         psi0: ``(S,)`` the bending planes at the start (radians; default 0); ``spatial``
             only.
-        **keywords: fields of :class:`SmootherOptions` (``landmarks``, ``relinearize``, ...),
-            overriding ``settings``; they read back as attributes (``smoother.lag``).
+        robustness: the outlier threshold (:class:`~apcc_graph.estimation.options.Robustness`).
+
+    The settings' fields read back as attributes (``smoother.lag``).
 
     Example::
 
@@ -95,26 +96,24 @@ class FixedLagSmoother:
     def __init__(self, robot: Robot, lag: float | None = None,
                  options: GraphOptions | None = None, theta0: ArrayLike | None = None,
                  settings: SmootherOptions | None = None, spatial: bool = False,
-                 psi0: ArrayLike | None = None, **keywords: Any) -> None:
+                 psi0: ArrayLike | None = None, robustness: Robustness | None = None) -> None:
         name = type(self).__name__
         start_angles(name, robot, None)  # the robot first
-        self.settings = s = smoother_settings(settings, lag, keywords, name)
+        self.settings = s = smoother_settings(settings, lag, name)
+        self.inlier_sigmas = (robustness or Robustness()).inlier_sigmas
         self.spatial = bool(spatial)
-        if psi0 is not None and not self.spatial:
-            raise ValueError(f"{name}: psi0 is given but spatial is False")
         self.bending = b = parameterisation(robot, self.spatial)  # every frame's variables
         self.theta0 = start_vector(robot, b, start_angles(name, robot, theta0), psi0)
-        self.start_contradicted = False
-        """Whether the first frame's images contradicted ``theta0`` (a warning said so)."""
+        self.start_contradicted = False  # the first frame's images contradicted theta0
         self.robot = robot
         self.options = o = GraphOptions() if options is None else options
         self._window = Window(s.lag, b.width**2 * robot.n_segments,
                               lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold),
                               lambda frame: present_frame(b, frame))
-        self._tracks = ProjectionTracks(robot, o, s, self._window, b)
+        self._tracks = ProjectionTracks(robot, o, s, self._window, b, self.inlier_sigmas)
         w = self._window
         self._landmarks = Landmarks(robot, self._tracks.chain, lambda g: (w.thetas[g], w.times[g]),
-                                    o.threshold_px, o.inlier_sigmas, s.lag, s.max_landmarks,
+                                    o.threshold_px, self.inlier_sigmas, s.lag, s.max_landmarks,
                                     s.landmark_sigma, s.pose_sigma, self._tracks.dim)
         self._previous_rows: Rows = {}
         self._previous_base: FloatArray | None = None
@@ -181,9 +180,9 @@ class FixedLagSmoother:
                 and tracks_returned(rows, self._previous_rows, self._known)):
             sigmas = component_sigmas(self.bending, self._sigmas(f - 1))
             warn_blackout(still.count - 1, still.last_time or 0.0, sigmas)
-            self._reacquiring = Reacquisition(self.robot, self.options, self.bending,
-                                              window.thetas[f - 1],
-                                              float(np.nanmax(sigmas, initial=math.pi / 6)))
+            self._reacquiring = Reacquisition(
+                self.robot, self.options, self.inlier_sigmas, self.bending,
+                window.thetas[f - 1], float(np.nanmax(sigmas, initial=math.pi / 6)))
         self._tracked = self._tracked or bool(rows)
         if self._reacquiring is not None:
             if self._reacquiring.due(t, window.lag):
@@ -250,7 +249,7 @@ class FixedLagSmoother:
             prediction, accepted = front_end_guess(
                 previous, prediction, self.robot, bending, self._previous_base, base,
                 self._previous_rows, rows, self.options.threshold_px, self._rng)
-        guess = refine(prediction, self.robot, bending, base, known, self.options.inlier_sigmas)
+        guess = refine(prediction, self.robot, bending, base, known, self.inlier_sigmas)
         for (cam, mask), flags in zip(masks, guess.row_inliers, strict=True):
             weights[cam][mask] = flags.astype(float)
         status = np.full(S, "ok" if guess.refined else "predicted", dtype="<U24")

@@ -4,17 +4,16 @@
 still frames of :class:`~apcc_graph.estimation.smoother.FixedLagSmoother`. How the factor graph
 itself is built is :class:`~apcc_graph.estimation.options.GraphOptions`, shared with the batch.
 
-The smoother takes these fields as keyword arguments (``FixedLagSmoother(robot, lag=0.5)``) and
-builds the record with :func:`smoother_settings`; a record can be passed whole instead
-(``settings=``), and keywords then override its fields.
+The smoother takes the record whole (``settings=``; a misspelled field is refused by name) and,
+for the window's length alone, ``lag`` (``FixedLagSmoother(robot, lag=0.5)``), which overrides
+the record's.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
-from typing import Any
+from dataclasses import dataclass, replace
 
 
 def _positive(owner: object, name: str, value: float, unit: str) -> None:
@@ -134,26 +133,16 @@ class SmootherOptions:
 
 
 def smoother_settings(settings: SmootherOptions | None, lag: float | None,
-                      keywords: Mapping[str, Any], owner: str) -> SmootherOptions:
-    """The options record of a smoother built from keyword arguments: ``settings`` (default
-    ``SmootherOptions()``) with ``lag`` and ``keywords`` overriding its fields.
+                      owner: str) -> SmootherOptions:
+    """The options record of a smoother: ``settings`` (default ``SmootherOptions()``) with
+    ``lag`` overriding its own.
 
     Raises:
-        TypeError: a keyword that is no field of :class:`SmootherOptions`, or ``settings`` of
-            another type.
+        TypeError: ``settings`` of another type.
         ValueError: a field out of range (from the record's validation).
     """
-    names = {f.name for f in fields(SmootherOptions)}
-    unknown = sorted(set(keywords) - names)
-    if unknown:
-        raise TypeError(f"{owner}: unknown argument(s) {', '.join(unknown)}; expected "
-                        f"{', '.join(sorted(names))}")
     if settings is not None and not isinstance(settings, SmootherOptions):
         raise TypeError(f"{owner}.settings: expected SmootherOptions, got "
                         f"{type(settings).__name__}")
-    changes = dict(keywords)
-    if lag is not None:
-        changes["lag"] = lag
-    if settings is None:
-        return SmootherOptions(**changes)
-    return replace(settings, **changes) if changes else settings
+    settings = SmootherOptions() if settings is None else settings
+    return settings if lag is None else replace(settings, lag=lag)

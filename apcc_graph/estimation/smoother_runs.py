@@ -6,15 +6,14 @@ window); ground-truth columns are never read.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numpy.typing import ArrayLike
 from tqdm import tqdm
 
-from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.model.sequence import Sequence
 
 
@@ -44,10 +43,12 @@ def stream_estimate(smoother: FixedLagSmoother, sequence: Sequence, progress: bo
 def smoother_estimate(
     sequence: Sequence,
     theta0: ArrayLike | None = None,
-    lag: float | None = None,
     options: GraphOptions | None = None,
+    settings: SmootherOptions | None = None,
+    robustness: Robustness | None = None,
     progress: bool = False,
-    **smoother_options: Any,
+    psi0: ArrayLike | None = None,
+    spatial: bool = False,
 ) -> Estimate:
     """Run :class:`~apcc_graph.estimation.smoother.FixedLagSmoother` over a recorded sequence,
     frame by frame.
@@ -55,20 +56,18 @@ def smoother_estimate(
     Args:
         sequence: the sequence.
         theta0: ``(S,)`` starting configuration in radians (default straight).
-        lag: window length in seconds (default the smoother options' 1 s).
-        options: graph construction (:class:`~apcc_graph.estimation.options.GraphOptions`).
+        options: the measurement model (:class:`~apcc_graph.estimation.options.GraphOptions`).
+        settings: the smoother's options
+            (:class:`~apcc_graph.estimation.smoother_options.SmootherOptions`: the lag, ...).
+        robustness: the outlier threshold
+            (:class:`~apcc_graph.estimation.options.Robustness`).
         progress: show a progress bar.
-        **smoother_options: further :class:`FixedLagSmoother` arguments (fields of
-            :class:`~apcc_graph.estimation.smoother_options.SmootherOptions`, ``settings``,
-            ``spatial``, ``psi0``).
+        psi0, spatial: as :class:`~apcc_graph.estimation.smoother.FixedLagSmoother`.
 
     Returns:
         The estimate, ``method = "smoother"``.
     """
-    if smoother_options.get("calibrate"):
-        raise ValueError("calibrate=True: the smoother does not self-calibrate; use the batch "
-                         "(method 'batch', calibrate=True)")
-    smoother_options.pop("calibrate", None)
-    smoother = FixedLagSmoother(sequence.robot, lag=lag, options=options, theta0=theta0,
-                                **smoother_options)
+    smoother = FixedLagSmoother(sequence.robot, options=options, theta0=theta0,
+                                settings=settings, spatial=spatial, psi0=psi0,
+                                robustness=robustness)
     return stream_estimate(smoother, sequence, progress)

@@ -46,7 +46,7 @@ from apcc_graph.estimation.batch_solve import build_terms, projection_solve
 from apcc_graph.estimation.bends import parameterisation
 from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.graph import CameraTerms
-from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.result import StartReport
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.bending import bending_vector
@@ -163,19 +163,20 @@ def robust_cost(terms: list[CameraTerms], thetas: FloatArray, inlier_sigmas: flo
 
 
 def _refine(sequence: Sequence, bending: Bending, start: FloatArray, options: GraphOptions,
-            terms: list[CameraTerms]) -> Hypothesis:
+            robustness: Robustness, terms: list[CameraTerms]) -> Hypothesis:
     """One hypothesis propagated by the chain and refined by the batch over the window,
     scored on the window's ``terms`` (built once for every hypothesis)."""
     x, _, _ = chain_vectors(sequence, bending, start, options.threshold_px)
-    found = projection_solve(sequence, x, np.zeros(bending.dim), options, bending=bending)
+    found = projection_solve(sequence, x, np.zeros(bending.dim), options, robustness,
+                             bending=bending)
     return Hypothesis(start, found.x, found.blocks,
-                      robust_cost(terms, found.x, options.inlier_sigmas))
+                      robust_cost(terms, found.x, robustness.inlier_sigmas))
 
 
 def find_start(sequence: Sequence, seconds: float = START_SECONDS,
                options: GraphOptions | None = None, max_sigma: float = MAX_SIGMA,
                prior_sigma: float = PRIOR_SIGMA, ambiguity: float = AMBIGUITY,
-               spatial: bool = False) -> StartSearch:
+               spatial: bool = False, robustness: Robustness | None = None) -> StartSearch:
     """The configuration over the first ``seconds`` of ``sequence``, without a start prior.
 
     Args:
@@ -189,6 +190,8 @@ def find_start(sequence: Sequence, seconds: float = START_SECONDS,
         ambiguity: robust-cost margin under which a distant second solution makes the start
             ambiguous.
         spatial: the robot bends in 3-D: search the bending vectors (the planes too).
+        robustness: how outliers are decided (default
+            :class:`~apcc_graph.estimation.options.Robustness`).
 
     Returns:
         The search; ``determined`` says whether to trust it, ``reason`` why not.
@@ -212,7 +215,8 @@ def find_start(sequence: Sequence, seconds: float = START_SECONDS,
                            np.full((1, sequence.n_segments, w, w), np.nan), math.inf)
         return StartSearch(1, 0.0, (empty,), False, "a single frame shows no motion", bending)
     terms = build_terms(window, options, bending)
-    refined = sorted((_refine(window, bending, start, options, terms)
+    robustness = Robustness() if robustness is None else robustness
+    refined = sorted((_refine(window, bending, start, options, robustness, terms)
                       for start in start_hypotheses(bending)), key=lambda h: h.cost)
     reason = _undetermined(window, bending, refined, max_sigma, ambiguity)
     return StartSearch(window.n_frames, span, tuple(refined), not reason, reason, bending)
@@ -266,7 +270,8 @@ def _distances(bending: Bending, d: FloatArray, blocks: FloatArray) -> FloatArra
 
 def start_from_data(sequence: Sequence, seconds: float = START_SECONDS,
                     options: GraphOptions | None = None, max_sigma: float = MAX_SIGMA,
-                    prior_sigma: float = PRIOR_SIGMA, spatial: bool = False) -> StartSearch:
+                    prior_sigma: float = PRIOR_SIGMA, spatial: bool = False,
+                    robustness: Robustness | None = None) -> StartSearch:
     """:func:`find_start` over 1, 2, 4, ... times ``seconds`` until the start is determined.
 
     Raises:
@@ -276,7 +281,7 @@ def start_from_data(sequence: Sequence, seconds: float = START_SECONDS,
     window = seconds
     while True:
         search = find_start(sequence, window, options, max_sigma, prior_sigma,
-                            spatial=spatial)
+                            spatial=spatial, robustness=robustness)
         if search.determined:
             return search
         if search.n_frames >= sequence.n_frames:

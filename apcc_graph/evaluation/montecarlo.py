@@ -56,7 +56,7 @@ def run_seed(robot_file: str, frames: int, seed: int, noise_px: float, outliers:
     raises for a failure of its own (the error is the run's status)."""
     root = Path(folder)
     sequence, estimate, bound_file = root / "sequence", root / "estimate", root / "bound.csv"
-    options: dict[str, Any] = {"theta0_sigma": THETA0_SIGMA, "threshold_px": noise_px}
+    options: dict[str, Any] = {"theta0_sigma": THETA0_SIGMA, "noise_px": noise_px}
     if not redo and (estimate / DONE).is_file() and bound_file.is_file():
         bound = tuple(math.radians(float(v)) for v in bound_file.read_text().split()[1:])
         return SeedRun(seed, estimate_one(str(sequence), str(estimate), method, options), bound)
