@@ -1,8 +1,10 @@
 """The projection factor in joint space: every observation once, each track's point eliminated.
 
-Variables: one ``Vector(S)`` per frame, the angles of all S segments (radians); key
-:func:`frame_key`. The camera on segment ``c`` depends on the first ``c + 1`` of them
-(:mod:`apcc_graph.factors.camera_chain`); the robot base poses are known inputs.
+Variables: one vector per frame (radians; key :func:`frame_key`) in the robot's
+parameterisation (:class:`~apcc_graph.model.parameterisation.Bending`: an angle per segment in
+fixed planes, or a bending vector per segment). The camera on segment ``c`` depends on the
+components of segments ``0..c`` (:mod:`apcc_graph.factors.camera_chain`); the robot base poses
+are known inputs.
 
 The factor's maths, the pixel reprojection error with each track's point eliminated by the
 Schur complement, is :mod:`apcc_graph.factors.reduced_system` (docs/estimation.md, "Eliminating each
@@ -44,7 +46,7 @@ from apcc_graph.model.segment import calibrated
 
 
 def frame_key(frame: int) -> int:
-    """The graph key of frame ``frame``'s angles (a ``Vector(S)``)."""
+    """The graph key of frame ``frame``'s vector (its bends, in the robot's parameterisation)."""
     return int(gtsam.symbol("x", frame))
 
 

@@ -111,6 +111,24 @@ def test_cli_estimate_spatial_and_evaluate(spatial_folder, tmp_path: Path, metho
                                np.degrees(np.sqrt(np.mean(err**2, axis=0))), atol=1e-4)
 
 
+def test_cli_spatial_without_a_start_finds_it(spatial_folder, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """--spatial without --theta0-deg: the search finds the bends and the planes at frame 0,
+    and the summary says where."""
+    folder, seq = spatial_folder
+    out = tmp_path / "est"
+    assert main(["estimate", str(folder), "--spatial", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    found = next(line for line in text.splitlines() if line.startswith("start found"))
+    planes = next(line for line in text.splitlines() if "in the bending planes" in line)
+    thetas = [float(v.split("+/-")[0]) for v in found.split("frames): ")[1][:-4].split(", ")]
+    psis = [float(v) for v in planes.split("planes ")[1].split(" deg")[0].split(", ")]
+    b_found = np.radians(thetas)[:, None] * np.stack([np.cos(np.radians(psis)),
+                                                      np.sin(np.radians(psis))], -1)
+    b_true = seq.thetas[0][:, None] * np.stack([np.cos(seq.psis[0]), np.sin(seq.psis[0])], -1)
+    assert np.degrees(np.linalg.norm(b_found - b_true, axis=-1)).max() < 2.0
+
+
 @pytest.mark.parametrize(("extra", "expected"), [
     (["--psi0-deg=0,0,0"], "--psi0-deg applies to --spatial only"),
     (["--spatial", "--psi0-deg=0,0,0"], "--psi0-deg applies to a given start"),

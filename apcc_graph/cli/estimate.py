@@ -213,6 +213,10 @@ def _run_one(args: argparse.Namespace, folder: str) -> str:
                      "frames): " + ", ".join(
                          f"{math.degrees(t):.2f} +/- {math.degrees(s):.2f}"
                          for t, s in zip(found.theta0, found.sigma0, strict=True)) + " deg")
+        if found.psi0 is not None:
+            lines.append("  in the bending planes " + ", ".join(
+                f"{math.degrees(p):.1f}" for p in found.psi0) + " deg (sigmas: along each "
+                "bending vector's worst-determined direction)")
     if args.calibrate and result.calibration_sigmas is not None:
         for i, (seg, sig) in enumerate(zip(result.robot.segments, result.calibration_sigmas,
                                            strict=True)):

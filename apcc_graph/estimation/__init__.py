@@ -1,13 +1,17 @@
-"""Estimators of the segment angles over a sequence (docs/estimation.md).
+"""Estimators of the segment bends over a sequence (docs/estimation.md).
 
 - The one call behind ``apcc_graph.estimate`` (:mod:`~apcc_graph.estimation.methods`), the
+  options it takes, one record per concern (:mod:`~apcc_graph.estimation.options`), the
   result every estimator returns (:mod:`~apcc_graph.estimation.result`) and many sequences at
   once, in process or on Dask (:mod:`~apcc_graph.estimation.many`).
-- The paper's chain, frame by frame and segment by segment (:mod:`~apcc_graph.estimation.chain`).
+- The one parameterisation every estimator solves for, and the way back to angles and planes
+  (:mod:`~apcc_graph.estimation.bends`): a planar robot is the case of fixed bending planes.
+- The two-frame front end, segment by segment with the 1-point or 2-point solver
+  (:mod:`~apcc_graph.estimation.front_end`), and the paper's chain that runs it over a
+  recording (:mod:`~apcc_graph.estimation.chain`).
 - The start when nobody gives it: hypotheses refined by the batch over the first second,
   reported undetermined when the images cannot tell (:mod:`~apcc_graph.estimation.start_search`).
-- Graph building shared by the batch and the smoother: the options
-  (:mod:`~apcc_graph.estimation.options`), the projection-model terms
+- Graph building shared by the batch and the smoother: the projection-model terms
   (:mod:`~apcc_graph.estimation.graph`) and outlier decisions
   (:mod:`~apcc_graph.estimation.robust`).
 - The batch optimiser (:mod:`~apcc_graph.estimation.batch`).

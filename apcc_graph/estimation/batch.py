@@ -1,9 +1,10 @@
 """Batch estimation of a whole sequence: one factor graph, Levenberg-Marquardt (gtsam).
 
-The graph (:mod:`apcc_graph.estimation.graph`): one ``Vector(S)`` of angles per frame, the
-start prior, a weak motion prior, soft joint limits, and per camera the projection factors of
-its tracks: every observation once, each track's 3-D point triangulated and eliminated
-(``docs/estimation.md``).
+The graph (:mod:`apcc_graph.estimation.graph`): one vector per frame in the robot's
+parameterisation (:mod:`apcc_graph.estimation.bends`: the angles of a planar robot, the bending
+vectors of one that bends in 3-D), the start prior, a weak motion prior, soft joint limits, and
+per camera the projection factors of its tracks: every observation once, each track's 3-D
+point triangulated and eliminated (``docs/estimation.md``).
 
 Outliers are decided per observation against its own track's point, by graduated
 non-convexity of a truncated quadratic (:mod:`apcc_graph.estimation.robust`): the first
@@ -12,7 +13,7 @@ each ``mu`` of the continuation, gtsam's Levenberg-Marquardt solves the weighted
 weights are recomputed from the residuals at the new solution. The last stage (the truncated
 quadratic itself) repeats until no observation changes side. Marginal standard deviations come
 from ``gtsam.Marginals`` at the solution. The solver is
-:mod:`apcc_graph.estimation.batch_solve`; this module finds its starting angles.
+:mod:`apcc_graph.estimation.batch_solve`; this module finds its starting values.
 """
 
 from __future__ import annotations

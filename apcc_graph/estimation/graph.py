@@ -192,7 +192,7 @@ def values_from(thetas: FloatArray, frames: Iterable[int]) -> gtsam.Values:
 
 
 def thetas_from(values: gtsam.Values, frames: Iterable[int]) -> FloatArray:
-    """``(F, S)`` angles of ``frames`` in ``values``."""
+    """``(F, dim)`` the frame vectors of ``frames`` in ``values``."""
     return np.array([values.atVector(frame_key(int(f))) for f in frames])
 
 

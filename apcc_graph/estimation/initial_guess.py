@@ -41,7 +41,7 @@ class InitialGuess:
     """The new frame's angles and what backed them.
 
     Attributes:
-        thetas: ``(S,)`` angles (radians).
+        thetas: the new frame's vector (the parameterisation's, radians).
         inliers: ``(S,)`` per camera segment, observations within the threshold (0 where the
             segment has no camera or no known points).
         refined: whether the observations refined the prediction.

@@ -67,8 +67,8 @@ class SmootherOptions:
             keep all their observations.
         front_end_rows: a camera whose new observations include fewer than this many of
             tracks with known points (the first frames, after a blackout) has its segment's
-            angle started by the 1-point front end from the previous frame
-            (:func:`~apcc_graph.estimation.initial_guess.one_point_guess`).
+            bend started by the two-frame front end from the previous frame
+            (:func:`~apcc_graph.estimation.front_end.front_end_guess`).
         point_iterations: triangulation steps per linearisation of a projection factor, from
             its points of the previous one
             (:func:`apcc_graph.factors.reduced_system.reduced_system`).

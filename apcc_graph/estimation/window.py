@@ -54,7 +54,7 @@ class SmootherFrame:
     Attributes:
         frame: 0-based frame index (the order of the smoother's ``update`` calls).
         timestamp: seconds.
-        thetas: ``(S,)`` angles (radians).
+        thetas: ``(S,)`` angles (radians; a spatial robot's bend magnitudes).
         sigmas: ``(S,)`` marginal standard deviations (radians; NaN without uncertainty).
         status: ``(S,)`` per segment: ``"ok"`` (measured), ``"initial"`` (first frame),
             ``"predicted"`` (no known point seen: the prediction stands), ``"recovered"``
@@ -143,7 +143,8 @@ class Window:
         smoother: gtsam's smoother holding the window's variables.
         stamps: frame -> gtsam timestamp of its variables (seconds), for frames inside.
         times: frame -> its timestamp (seconds), for frames inside.
-        thetas: frame -> its latest estimate ``(S,)``, for frames inside (and the new one).
+        thetas: frame -> its latest estimate (its frame vector), for frames inside (and the
+            new one).
         status: frame -> its status ``(S,)``, for frames inside.
         final: frame -> final estimate, for frames that left (until :meth:`pop_final`).
         recent: frame -> final estimate of the two newest frames that left, kept for
@@ -205,7 +206,7 @@ class Window:
             del self.recent[g]
 
     def latest(self, frame: int) -> FloatArray | None:
-        """The latest estimate ``(S,)`` of ``frame``: inside the window, or one of the two
+        """The latest estimate (frame vector) of ``frame``: inside the window, or one of the two
         newest frames that left; ``None`` otherwise (e.g. before the stream began)."""
         inside = self.thetas.get(frame)
         return inside if inside is not None else self.recent.get(frame)
