@@ -260,11 +260,13 @@ def _distances(bending: Bending, d: FloatArray, blocks: FloatArray) -> FloatArra
     for j in range(bending.n_segments):
         dj, C = d[bending.columns(j)], blocks[j]
         try:
-            out[j] = math.sqrt(max(float(dj @ np.linalg.solve(C, dj)), 0.0))
+            squared = float(dj @ np.linalg.solve(C, dj))
         except np.linalg.LinAlgError:
-            out[j] = 0.0 if not np.any(dj) else math.inf
-        if not math.isfinite(out[j]):
-            out[j] = 0.0 if not np.any(dj) else math.inf
+            squared = math.nan
+        if math.isfinite(squared):
+            out[j] = math.sqrt(max(squared, 0.0))
+        else:
+            out[j] = math.inf if np.any(dj) else 0.0
     return out
 
 

@@ -68,9 +68,8 @@ class Bending:
                 raise ValueError(f"planes = {self.planes!r}: expected {len(self.segments)} "
                                  "finite bending-plane angles (radians)")
             object.__setattr__(self, "planes", planes)
-        object.__setattr__(self, "_plane", tuple(
-            0.0 if self.planes is None else float(p) for p in
-            (self.planes if self.planes is not None else np.zeros(len(self.segments)))))
+        planes = np.zeros(len(self.segments)) if self.planes is None else self.planes
+        object.__setattr__(self, "_plane", tuple(float(p) for p in planes))
 
     @classmethod
     def fixed(cls, segments: Sequence[Segment], planes: ArrayLike | None = None) -> Bending:
