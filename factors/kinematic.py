@@ -49,6 +49,7 @@ import gtsam
 import numpy as np
 
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
 from apcc_graph.model.segment import Segment
 
@@ -151,3 +152,81 @@ def kinematic_factor(
         return r
 
     return gtsam.CustomFactor(model, [base_key, theta_key, tip_key], error_func)
+
+
+def _vee(M: FloatArray) -> FloatArray:
+    """``(omega, v)`` of a 4x4 twist matrix."""
+    return np.array([M[2, 1], M[0, 2], M[1, 0], M[0, 3], M[1, 3], M[2, 3]])
+
+
+def segment_tie_residual(world_T_base: gtsam.Pose3, x: FloatArray, world_T_tip: gtsam.Pose3,
+                         bending: Bending, segment: int, jacobians: bool = True
+                         ) -> KinematicResidual:
+    """The kinematic residual of segment ``segment`` in any parameterisation of the frame.
+
+    The same residual as :func:`kinematic_residual`, ``Logmap(world_T_tip^-1 world_T_base
+    base_T_tip(x))``, with the segment's transform taken from its components of the whole frame
+    vector ``x`` (:class:`~apcc_graph.model.parameterisation.Bending`: an angle in a fixed
+    plane, or a bending vector).
+
+    Returns:
+        ``r`` ``(6,)``, ``H_base`` ``(6, 6)``, ``H_x`` ``(6, dim)`` (zero outside the segment's
+        columns) and ``H_tip`` ``(6, 6)``, under ``T . Exp(d)`` and ``x + d``.
+    """
+    x = np.asarray(x, dtype=float)
+    A = bending.transform(x, segment)
+    base_T_tip = gtsam.Pose3(A)
+    E = world_T_tip.between(world_T_base.compose(base_T_tip))
+    r = gtsam.Pose3.Logmap(E)
+    if not jacobians:
+        return r, None, None, None
+    Jinv = gtsam.Pose3.LogmapDerivative(r)
+    A_inv = np.linalg.inv(A)
+    H_x = np.zeros((6, bending.dim))
+    first = bending.columns(segment).start
+    for p, dA in enumerate(bending.derivatives(x, segment)):
+        H_x[:, first + p] = Jinv @ _vee(A_inv @ dA)
+    return r, Jinv @ base_T_tip.inverse().AdjointMap(), H_x, -Jinv @ E.inverse().AdjointMap()
+
+
+def segment_tie_factor(x_key: int, tip_key: int, base: int | FloatArray, bending: Bending,
+                       segment: int,
+                       noise: gtsam.noiseModel.Base | float | Sequence[float] | FloatArray
+                       ) -> gtsam.CustomFactor:
+    """A ``gtsam.CustomFactor`` tying one segment's tip pose to its base and the frame vector.
+
+    Args:
+        x_key: key of the frame vector (a ``Vector`` of ``bending.dim``).
+        tip_key: key of the segment's ``world_T_tip`` (a ``Pose3``).
+        base: key of the segment's ``world_T_base`` (the previous segment's tip), or a known
+            ``(4, 4)`` base pose (the robot's base): then the factor has two keys.
+        bending: the robot's parameterisation.
+        segment: the segment (0-based).
+        noise: a noise model of dimension 6, or sigmas for :func:`kinematic_noise` (the model
+            error of the segment: rotation in radians then translation in metres, tip frame).
+
+    Returns:
+        The factor over ``[x_key, tip_key]`` (and ``base`` when it is a key); its error is the
+        residual of :func:`segment_tie_residual` whitened by ``noise``.
+    """
+    model = noise if isinstance(noise, gtsam.noiseModel.Base) else kinematic_noise(noise)
+    if model.dim() != 6:
+        raise ValueError(f"kinematic noise model of dimension {model.dim()}: expected 6")
+    if not 0 <= segment < bending.n_segments:
+        raise ValueError(f"segment {segment}: expected 0 <= segment < {bending.n_segments}")
+    known = None if isinstance(base, int) else gtsam.Pose3(np.asarray(base, dtype=float))
+    keys = [x_key, tip_key] + ([] if known is not None else [int(base)])  # type: ignore[arg-type]
+
+    def error_func(this: gtsam.CustomFactor, values: gtsam.Values,
+                   H: list[np.ndarray] | None) -> np.ndarray:
+        world_T_base = known if known is not None else values.atPose3(keys[2])
+        r, h_base, h_x, h_tip = segment_tie_residual(
+            world_T_base, values.atVector(x_key), values.atPose3(tip_key), bending, segment,
+            jacobians=H is not None)
+        if H is not None:
+            H[0], H[1] = h_x, h_tip
+            if known is None:
+                H[2] = h_base
+        return r
+
+    return gtsam.CustomFactor(model, keys, error_func)
