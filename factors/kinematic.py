@@ -154,8 +154,8 @@ def kinematic_factor(
     return gtsam.CustomFactor(model, [base_key, theta_key, tip_key], error_func)
 
 
-def _vee(M: FloatArray) -> FloatArray:
-    """``(omega, v)`` of a 4x4 twist matrix."""
+def vee(M: FloatArray) -> FloatArray:
+    """``(omega, v)`` (gtsam's order) of a 4x4 twist matrix ``[[omega]x, v; 0, 0]``."""
     return np.array([M[2, 1], M[0, 2], M[1, 0], M[0, 3], M[1, 3], M[2, 3]])
 
 
@@ -185,7 +185,7 @@ def segment_tie_residual(world_T_base: gtsam.Pose3, x: FloatArray, world_T_tip: 
     H_x = np.zeros((6, bending.dim))
     first = bending.columns(segment).start
     for p, dA in enumerate(bending.derivatives(x, segment)):
-        H_x[:, first + p] = Jinv @ _vee(A_inv @ dA)
+        H_x[:, first + p] = Jinv @ vee(A_inv @ dA)
     return r, Jinv @ base_T_tip.inverse().AdjointMap(), H_x, -Jinv @ E.inverse().AdjointMap()
 
 

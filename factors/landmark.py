@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.kinematic import vee
 from apcc_graph.factors.projection import frame_key
 from apcc_graph.model.arrays import FloatArray
 
@@ -56,11 +57,6 @@ def camera_pose_key(frame: int, camera: int) -> int:
     if not 0 <= camera < MAX_CAMERAS:
         raise ValueError(f"camera {camera}: expected 0 <= camera < {MAX_CAMERAS}")
     return int(gtsam.symbol("p", frame * MAX_CAMERAS + camera))
-
-
-def _vee(M: FloatArray) -> FloatArray:
-    """``(omega, v)`` of a 4x4 twist matrix."""
-    return np.array([M[2, 1], M[0, 2], M[1, 0], M[0, 3], M[1, 3], M[2, 3]])
 
 
 def camera_pose_residual(X: gtsam.Pose3, thetas: FloatArray, chain: CameraChain, frame: int,
@@ -86,7 +82,7 @@ def camera_pose_residual(X: gtsam.Pose3, thetas: FloatArray, chain: CameraChain,
     assert d_poses is not None
     Jinv = gtsam.Pose3.LogmapDerivative(r)
     T_inv = np.linalg.inv(T)
-    xi = np.column_stack([_vee(T_inv @ d_poses[0, j]) for j in range(n)])
+    xi = np.column_stack([vee(T_inv @ d_poses[0, j]) for j in range(n)])
     return r, Jinv @ xi, -Jinv @ E.inverse().AdjointMap()
 
 
