@@ -93,16 +93,22 @@ def kinematic_residual(
         right-hand perturbations ``T . Exp(d)`` and ``theta + d`` (see the module docstring).
     """
     A, xi = _transform_and_twist(float(theta), segment, float(psi))
+    return _pose_tie(world_T_base, A, world_T_tip, xi[:, None] if jacobians else None)
+
+
+def _pose_tie(world_T_base: gtsam.Pose3, A: FloatArray, world_T_tip: gtsam.Pose3,
+              twists: FloatArray | None) -> KinematicResidual:
+    """``r = Logmap(world_T_tip^-1 world_T_base A)`` and, given the body twists ``(6, m)`` of
+    ``A`` in its ``m`` parameters, the Jacobians in the base, those parameters and the tip
+    (module docstring); ``None`` Jacobians without ``twists``."""
     base_T_tip = gtsam.Pose3(A)
     E = world_T_tip.between(world_T_base.compose(base_T_tip))
     r = gtsam.Pose3.Logmap(E)
-    if not jacobians:
+    if twists is None:
         return r, None, None, None
     Jinv = gtsam.Pose3.LogmapDerivative(r)
-    H_base = Jinv @ base_T_tip.inverse().AdjointMap()
-    H_theta = (Jinv @ xi)[:, None]
-    H_tip = -Jinv @ E.inverse().AdjointMap()
-    return r, H_base, H_theta, H_tip
+    return (r, Jinv @ base_T_tip.inverse().AdjointMap(), Jinv @ twists,
+            -Jinv @ E.inverse().AdjointMap())
 
 
 def kinematic_noise(sigmas: float | Sequence[float] | FloatArray) -> gtsam.noiseModel.Base:
@@ -175,18 +181,14 @@ def segment_tie_residual(world_T_base: gtsam.Pose3, x: FloatArray, world_T_tip: 
     """
     x = np.asarray(x, dtype=float)
     A = bending.transform(x, segment)
-    base_T_tip = gtsam.Pose3(A)
-    E = world_T_tip.between(world_T_base.compose(base_T_tip))
-    r = gtsam.Pose3.Logmap(E)
     if not jacobians:
-        return r, None, None, None
-    Jinv = gtsam.Pose3.LogmapDerivative(r)
+        return _pose_tie(world_T_base, A, world_T_tip, None)
     A_inv = np.linalg.inv(A)
+    twists = np.column_stack([vee(A_inv @ dA) for dA in bending.derivatives(x, segment)])
+    r, h_base, h_segment, h_tip = _pose_tie(world_T_base, A, world_T_tip, twists)
     H_x = np.zeros((6, bending.dim))
-    first = bending.columns(segment).start
-    for p, dA in enumerate(bending.derivatives(x, segment)):
-        H_x[:, first + p] = Jinv @ vee(A_inv @ dA)
-    return r, Jinv @ base_T_tip.inverse().AdjointMap(), H_x, -Jinv @ E.inverse().AdjointMap()
+    H_x[:, bending.columns(segment)] = h_segment
+    return r, h_base, H_x, h_tip
 
 
 def segment_tie_factor(x_key: int, tip_key: int, base: int | FloatArray, bending: Bending,
