@@ -163,6 +163,11 @@ _MISTAKES = {
         "unknown key",
     ),
     "output-under-a-file": (_output_under_a_file, "blocker"),
+    "model-noise-for-the-smoother": (
+        lambda tmp: ["estimate", "data/sequences/planar_three", "--method", "smoother",
+                     "--model-sigma", "1,0.5", "--out", str(tmp / "out")],
+        "--model-sigma applies to --method batch",
+    ),
 }
 
 
@@ -192,9 +197,12 @@ def test_user_mistakes_give_one_error_line_and_exit_1(
         ["estimate", "data/sequences/planar_three", "--method", "magic", "--out", "x"],
         ["bench"],
         ["plot", "x"],
+        ["estimate", "data/sequences/planar_three", "--model-sigma", "1", "--out", "x"],
+        ["bench", "real", "--model-sigma", "0,0.5"],
     ],
     ids=["unknown-subcommand", "unknown-option", "missing-argument", "bad-int", "no-command",
-         "unknown-method", "no-benchmark", "plot-without-output"],
+         "unknown-method", "no-benchmark", "plot-without-output", "model-sigma-one-number",
+         "model-sigma-zero"],
 )
 def test_argparse_mistakes_exit_1_with_one_line(argv: list[str],
                                                 capsys: pytest.CaptureFixture[str]) -> None:
@@ -303,3 +311,15 @@ def test_version_in_process(capsys: pytest.CaptureFixture[str]) -> None:
         main(["--version"])
     assert info.value.code == 0
     assert capsys.readouterr().out.strip() == f"apcc-graph {apcc_graph.__version__}"
+
+
+def test_model_sigma_reaches_the_batch_in_metres_and_radians() -> None:
+    from apcc_graph.cli.estimate import _options
+    from apcc_graph.cli.main import build_parser
+
+    args = build_parser().parse_args(["estimate", "data/sequences/planar_three",
+                                      "--model-sigma", "2,0.5", "--out", "x"])
+    graph = _options(args)["graph"]
+    assert graph.model_sigma == pytest.approx((2e-3, math.radians(0.5)))
+    args = build_parser().parse_args(["bench", "real", "--model-sigma", "1.5,0.25"])
+    assert args.model_sigma == pytest.approx((1.5e-3, math.radians(0.25)))

@@ -3,7 +3,10 @@
 
 For each recording: calibrate the robot from its backbone poses (k, delta_max, marker offsets),
 replay the measured motion with tip cameras seeing a simulated room, and estimate with the chain,
-the batch and the smoother from the floor's first configuration (the start given, with a prior).
+the batch (exact model), the batch with model error as noise (``noise``) and the smoother from
+the floor's first configuration (the start given, with a prior). A last row, ``noise@floor``, is
+a yardstick rather than an estimator: the batch with model noise started at the floor's bends of
+every frame, i.e. what the model-noise problem gives when its start is in the right basin.
 Each estimate's tips are compared with the measured tips beside the floor (the model's tips at the
 bends that best fit them); then the same for the model-exact version of the motion (the model's
 own tips at the floor's bends), where the floor is zero.
@@ -25,15 +28,22 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from apcc_graph.calibration.backbone_fit import fit_backbone
+from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
-from apcc_graph.evaluation.tip_floor import TipErrors, tip_errors, tip_floor
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.result import Estimate
+from apcc_graph.evaluation.tip_floor import TipErrors, TipFloor, tip_errors, tip_floor
 from apcc_graph.io.backbone_poses import load_backbone_poses
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.replay import measured_ends, motion_stretches, replay_motion
 
 RECORDINGS = ("slow_free_space", "impulse_2")
-METHODS = ("chain", "batch", "smoother")
+METHODS = ("chain", "batch", "noise", "smoother", "noise@floor")
+MODEL_SIGMA = (1e-3, math.radians(0.5))
+"""The benchmark's model noise (position m, rotation rad) for ``noise`` and ``noise@floor``."""
 MIN_STRETCH = 2.0
 """Stretches between gaps shorter than this (seconds) are left out of the benchmark."""
 
@@ -68,8 +78,26 @@ def _turns(tips: FloatArray) -> FloatArray:
     return Rotation.from_matrix(rel.reshape(-1, 3, 3)).magnitude().reshape(rel.shape[:2])
 
 
+def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, noise_px: float,
+              model_sigma: tuple[float, float]) -> Estimate:
+    """One row's estimate, from the floor's first configuration (``noise@floor``: from the
+    floor's bends of every frame)."""
+    if method == "noise@floor":
+        bending = Bending.free(seq.robot.segments)
+        return batch_estimate(seq, floor.thetas[0], psi0=floor.psis[0], spatial=True,
+                              initial=bending.vector(floor.thetas, floor.psis), marginals=False,
+                              options=GraphOptions(threshold_px=noise_px,
+                                                   theta0_sigma=start_sigma,
+                                                   model_sigma=model_sigma))
+    graph = GraphOptions(model_sigma=model_sigma) if method == "noise" else None
+    return estimate(seq, method="batch" if method == "noise" else method, spatial=True,
+                    theta0=floor.thetas[0], psi0=floor.psis[0], theta0_sigma=start_sigma,
+                    noise_px=noise_px, graph=graph)
+
+
 def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers: float,
-                    seed: int, start_sigma: float, methods: tuple[str, ...]) -> list[RealRow]:
+                    seed: int, start_sigma: float, methods: tuple[str, ...],
+                    model_sigma: tuple[float, float] = MODEL_SIGMA) -> list[RealRow]:
     """Calibrate, replay, estimate and score one recording (module docstring)."""
     name = poses_path.parent.name
     poses = load_backbone_poses(poses_path)
@@ -92,9 +120,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
         for version, seq in (("real", real), ("model-exact", exact)):
             for method in methods:
                 start = time.perf_counter()
-                est = estimate(seq, method=method, spatial=True, theta0=floor.thetas[0],
-                               psi0=floor.psis[0], theta0_sigma=start_sigma,
-                               noise_px=noise_px)
+                est = _estimate(seq, method, floor, start_sigma, noise_px, model_sigma)
                 errors.setdefault((version, method), []).append(
                     tip_errors(model.forward(est.thetas, est.psis), seq.truth_tips))
                 seconds[version, method] = (seconds.get((version, method), 0.0)
@@ -111,7 +137,8 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
 def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers: float = 0.1,
                    seed: int = 0, start_sigma: float = math.radians(2.0),
                    methods: tuple[str, ...] = METHODS,
-                   recordings: tuple[str, ...] = RECORDINGS) -> list[RealRow]:
+                   recordings: tuple[str, ...] = RECORDINGS,
+                   model_sigma: tuple[float, float] = MODEL_SIGMA) -> list[RealRow]:
     """:func:`bench_recording` of each recording ``data/<name>/backbone_poses.csv``.
 
     Raises:
@@ -124,7 +151,8 @@ def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers:
             raise ValueError(f"{path}: no such file; --data names the folder of the real-robot "
                              "recordings (data/real_tdcr in the repository)")
         rows += bench_recording(path, robot, noise_px=noise_px, outliers=outliers, seed=seed,
-                                start_sigma=start_sigma, methods=methods)
+                                start_sigma=start_sigma, methods=methods,
+                                model_sigma=model_sigma)
     return rows
 
 
@@ -145,6 +173,9 @@ def format_real_bench(rows: list[RealRow]) -> str:
         lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<10}{cells}{r.seconds:>9.1f}")
     lines.append("floor: the calibrated model's tips at the bends that best fit the measured "
                  "tips (zero on the model-exact motion)")
+    if any(r.method in ("noise", "noise@floor") for r in rows):
+        lines.append("noise: the batch with model error as noise; noise@floor: the same started "
+                     "at the floor's bends of every frame (a yardstick: the right basin given)")
     for r in rows:
         if r.method == "floor" and r.turn is not None:
             lines.append(f"{r.recording}: {r.frames} frames in the stretches of at least "

@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from apcc_graph.cli.common import FORMATTER, UserError, non_negative, positive
+from apcc_graph.cli.common import FORMATTER, UserError, model_sigma, non_negative, positive
 
 EXAMPLES = {
     "real": "apcc-graph bench real\n  apcc-graph bench real --methods chain --recordings impulse_2",
@@ -22,7 +22,9 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         description="For each recording of a real two-segment robot (data/real_tdcr): "
         "calibrate the robot from its backbone poses, replay the measured motion with tip "
         "cameras seeing a simulated room (1 px, 10%% outliers), estimate with the chain, the "
-        "batch and the smoother from the floor's first configuration (2 deg prior), and print "
+        "batch, the batch with model error as noise and the smoother from the floor's first "
+        "configuration (2 deg prior), and the yardstick noise@floor (the batch with model noise "
+        "started at the floor's bends of every frame), and print "
         "the RMS tip errors beside the floor (the model's best fit to the measured tips); then "
         "the same on the model-exact version of the motion.")
     rb.add_argument("--data", default="data/real_tdcr",
@@ -32,13 +34,16 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                     help="the robot to calibrate (default: %(default)s)")
     rb.add_argument("--recordings", default="slow_free_space,impulse_2",
                     help="recordings, comma-separated (default: %(default)s)")
-    rb.add_argument("--methods", default="chain,batch,smoother",
+    rb.add_argument("--methods", default="chain,batch,noise,smoother,noise@floor",
                     help="estimators, comma-separated (default: %(default)s)")
     rb.add_argument("--noise-px", type=non_negative, default=1.0, help="pixel noise (default 1)")
     rb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction (default 0.1)")
     rb.add_argument("--start-sigma-deg", type=positive, default=2.0,
                     help="the start prior's sigma, degrees (default 2)")
     rb.add_argument("--seed", type=int, default=0, help="replay seed (default 0)")
+    rb.add_argument("--model-sigma", type=model_sigma, default="1,0.5", metavar="MM,DEG",
+                    help="model noise of noise and noise@floor: tip position mm, rotation deg "
+                    "(default: %(default)s)")
     rb.set_defaults(run=run_real)
 
 
@@ -59,5 +64,5 @@ def run_real(args: argparse.Namespace) -> str:
     rows = run_real_bench(Path(args.data), load_robot(args.robot), noise_px=args.noise_px,
                           outliers=args.outliers, seed=args.seed,
                           start_sigma=math.radians(args.start_sigma_deg), methods=methods,
-                          recordings=recordings)
+                          recordings=recordings, model_sigma=args.model_sigma)
     return format_real_bench(rows)

@@ -56,6 +56,18 @@ non_negative = _number_type(lambda v: v >= 0, "a number >= 0")
 fraction = _number_type(lambda v: 0 <= v < 1, "a fraction 0 <= p < 1")
 
 
+def model_sigma(text: str) -> tuple[float, float]:
+    """An option type: ``MM,DEG`` (a model noise) as ``(metres, radians)``, both > 0."""
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected two numbers MM,DEG, e.g. 1,0.5"
+                                         ) from None
+    if not all(math.isfinite(v) and v > 0.0 for v in (mm, deg)):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected positive millimetres and degrees")
+    return mm * 1e-3, math.radians(deg)
+
+
 def at_least(minimum: int) -> Callable[[str], float]:
     """An option type: an integer of at least ``minimum``."""
     return _number_type(lambda v: v >= minimum, f"an integer >= {minimum}", int)

@@ -16,6 +16,7 @@ from apcc_graph.cli.common import (
     check_output_folder,
     degree_list,
     force_option,
+    model_sigma,
     out_option,
 )
 from apcc_graph.model.robot import Robot
@@ -62,6 +63,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     est.add_argument("--noise-px", type=float, default=1.0,
                      help="pixel noise of the tracks, standard deviation per coordinate "
                      "(default: %(default)s); sets the outlier threshold and the sigmas")
+    est.add_argument("--model-sigma", type=model_sigma, default=None, metavar="MM,DEG",
+                     help="model error as noise (--method batch): how far a segment's tip may "
+                     "depart from its kinematic model, position in mm and rotation in degrees, "
+                     "e.g. 1,0.5 (default: the exact model); docs/estimation.md")
     est.add_argument("--calibrate", action="store_true",
                      help="self-calibration: estimate each segment's k and delta_max with the "
                      "angles (--method batch); it writes robot_calibrated.toml")
@@ -126,7 +131,7 @@ def _spatial_options(args: argparse.Namespace) -> dict:
 
 def _options(args: argparse.Namespace) -> dict:
     """The estimator's keyword arguments from the command line, checked."""
-    from apcc_graph.estimation.options import BatchOptions
+    from apcc_graph.estimation.options import BatchOptions, GraphOptions
     from apcc_graph.estimation.smoother_options import SmootherOptions
 
     options: dict = {"progress": True, **_spatial_options(args)}
@@ -148,6 +153,10 @@ def _options(args: argparse.Namespace) -> dict:
     if not (math.isfinite(args.noise_px) and args.noise_px > 0.0):
         raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of pixels")
     options["noise_px"] = args.noise_px
+    if args.model_sigma is not None:
+        if args.method != "batch":
+            raise UserError("--model-sigma applies to --method batch only")
+        options["graph"] = GraphOptions(model_sigma=args.model_sigma)
     if args.calibrate:
         if args.method != "batch":
             raise UserError("--calibrate: self-calibration runs in --method batch")

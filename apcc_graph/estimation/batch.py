@@ -19,6 +19,7 @@ from ``gtsam.Marginals`` at the solution. The solver is
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -34,6 +35,7 @@ from apcc_graph.estimation.batch_solve import (
 from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
 from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.options import INITS, GraphOptions, Robustness
+from apcc_graph.estimation.pose_batch import pose_solve
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
@@ -52,7 +54,9 @@ def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
     ``init``: the chain or the fixed-lag smoother, started at ``start = (theta0, psi0)``)."""
     shape = (sequence.n_frames, bending.dim)
     if initial is None and init == "smoother":
-        first = smoother_estimate(sequence, theta0=start[0], psi0=start[1], options=options,
+        # The smoother has the exact model only.
+        first = smoother_estimate(sequence, theta0=start[0], psi0=start[1],
+                                  options=replace(options, model_sigma=None),
                                   settings=SmootherOptions(uncertainty=False),
                                   robustness=robustness, progress=progress,
                                   spatial=bending.is_free)
@@ -92,7 +96,9 @@ def batch_estimate(
             of ``options.theta0_sigma`` (on each component of the start's frame vector).
         initial: ``(F, dim)`` initial frame vectors (angles, or bending vectors with
             ``spatial``); default from ``init``.
-        options: how the graph is built (:class:`GraphOptions`).
+        options: how the graph is built (:class:`GraphOptions`); with its ``model_sigma`` the
+            model's error is noise: tip poses are variables tied to the kinematics
+            (:mod:`~apcc_graph.estimation.pose_batch`).
         max_iterations: Levenberg-Marquardt iterations per stage.
         marginals: compute marginal standard deviations (otherwise NaN).
         progress: show progress bars.
@@ -116,19 +122,27 @@ def batch_estimate(
         The estimate, ``method = "batch"``.
 
     Raises:
-        ValueError: a bad ``init``, ``theta0``, ``psi0`` or ``initial``.
+        ValueError: a bad ``init``, ``theta0``, ``psi0`` or ``initial``; ``calibrate`` with a
+            ``model_sigma``.
     """
     options = GraphOptions() if options is None else options
     if init not in INITS:
         raise ValueError(f"init = {init!r}: expected one of {INITS}")
+    if calibrate and options.model_sigma is not None:
+        raise ValueError("self-calibration (calibrate) needs the exact model: "
+                         "GraphOptions.model_sigma = None")
     robot = sequence.robot
     bending = parameterisation(robot, spatial)
     x0 = start_vector(robot, bending, theta0, psi0)
     initial, status = _initial_vectors(sequence, bending, x0, (theta0, psi0), initial, init,
                                        options, robustness, progress)
-    found = projection_solve(sequence, initial, x0, options, robustness, max_iterations,
-                             marginals=marginals, progress=progress, calibrate=calibrate,
-                             calibration_sigmas=calibration_sigmas, bending=bending)
+    if options.model_sigma is None:
+        found = projection_solve(sequence, initial, x0, options, robustness, max_iterations,
+                                 marginals=marginals, progress=progress, calibrate=calibrate,
+                                 calibration_sigmas=calibration_sigmas, bending=bending)
+    else:
+        found = pose_solve(sequence, initial, x0, options, robustness, max_iterations,
+                           marginals=marginals, bending=bending)
     if found.segments is not None:
         robot = Robot(found.segments, robot.cameras)
     status = np.where(np.char.startswith(status, "initial"), "initial", "ok").astype("<U24")

@@ -169,6 +169,9 @@ def _run(sequence: Sequence, method: str, theta0: ArrayLike, psi0: ArrayLike | N
                               psi0=psi0, spatial=spatial)
     from apcc_graph.estimation.smoother_runs import smoother_estimate
 
+    if graph.model_sigma is not None:
+        raise ValueError("GraphOptions.model_sigma (model error as noise) is the batch's so "
+                         "far; the smoother has the exact model: leave it None")
     return smoother_estimate(sequence, theta0, options=graph, settings=settings,
                              robustness=robustness, progress=progress, psi0=psi0,
                              spatial=spatial)
@@ -195,7 +198,8 @@ def _unknown_start(sequence: Sequence, method: str, graph: GraphOptions,
         start_from_data,
     )
 
-    search = start_from_data(sequence, options=graph,
+    # The search compares starts through the exact model, whatever the estimator's.
+    search = start_from_data(sequence, options=replace(graph, model_sigma=None),
                              max_sigma=MAX_SIGMA if method == "batch" else FIRM_SIGMA,
                              spatial=spatial, robustness=robustness)
     if method == "batch":

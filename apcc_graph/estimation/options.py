@@ -35,6 +35,11 @@ class GraphOptions:
         max_track_frames: longer tracks are cut into pieces of this many frames, each with a
             point of its own, so that no factor spans more frames than this (its dense block
             grows with the square of its span); ``None`` keeps whole tracks.
+        model_sigma: how far a real segment's tip may depart from its kinematic model:
+            ``(position in metres, rotation in radians)``, the standard deviation of each
+            component of the tip pose's departure in the tip's frame (docs/estimation.md,
+            "Model error as noise"). ``None`` (default) is the exact model: every observation
+            is projected through the model's camera poses. The batch only.
     """
 
     threshold_px: float = 1.0
@@ -44,8 +49,15 @@ class GraphOptions:
     frames_per_chunk: int = 15
     min_track_rows: int = 2
     max_track_frames: int | None = 150
+    model_sigma: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
+        if self.model_sigma is not None:
+            sigma = tuple(float(v) for v in self.model_sigma)
+            if len(sigma) != 2 or not all(math.isfinite(v) and v > 0.0 for v in sigma):
+                raise ValueError(f"GraphOptions.model_sigma = {self.model_sigma!r}: expected "
+                                 "None or (position m, rotation rad), both finite and > 0")
+            object.__setattr__(self, "model_sigma", sigma)
         for name in ("threshold_px", "theta0_sigma", "limit_sigma"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
