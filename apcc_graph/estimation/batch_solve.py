@@ -23,8 +23,8 @@ from apcc_graph.estimation.graph import (
     CameraTerms,
     calibration_factors,
     camera_chain,
-    camera_observations,
     frame_key,
+    observed_cameras,
     prior_factors,
     thetas_from,
     values_from,
@@ -55,15 +55,10 @@ def build_terms(sequence: Sequence, options: GraphOptions, bending: Bending | No
     vectors of ``bending`` (default: the planar robot's fixed planes). The sequence's
     ``psis`` are ground truth, which no estimator reads."""
     bending = Bending.fixed(sequence.robot.segments) if bending is None else bending
-    terms = []
-    for cam in sequence.robot.camera_segments:
-        obs = camera_observations(sequence, cam, options.threshold_px, options.min_track_rows,
-                                  max_track_frames=options.max_track_frames)
-        if obs is None:
-            continue
-        chain = camera_chain(sequence.robot, cam, bending, sequence.world_T_base)
-        terms.append(CameraTerms(obs, chain, bending.dim, options.frames_per_chunk, calibrate))
-    return terms
+    return [CameraTerms(obs, camera_chain(sequence.robot, obs.camera, bending,
+                                          sequence.world_T_base),
+                        bending.dim, options.frames_per_chunk, calibrate)
+            for obs in observed_cameras(sequence, options)]
 
 
 def _values_and_ordering(thetas: FloatArray, frames: SequenceOf[int],

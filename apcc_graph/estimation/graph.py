@@ -41,7 +41,8 @@ from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence as RobotSequence
 
 __all__ = ["CameraTerms", "calibration_factors", "calibration_from", "camera_observations",
-           "frame_key", "limit_factor", "prior_factors", "thetas_from", "values_from"]
+           "frame_key", "limit_factor", "observed_cameras", "prior_factors", "thetas_from",
+           "values_from"]
 
 
 def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
@@ -70,6 +71,16 @@ def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
     xy = bearings[:, :2] / bearings[:, 2:3]
     return build_observations(cam, tracks.frames[keep], ids[keep], xy,
                               camera.pixel_jacobian(xy) / noise_px)
+
+
+def observed_cameras(sequence: RobotSequence, options: GraphOptions) -> list[TrackObservations]:
+    """Every camera's observations as ``options`` build them (:func:`camera_observations`
+    with its noise, shortest tracks and longest pieces); cameras left with none are left
+    out."""
+    found = (camera_observations(sequence, cam, options.threshold_px, options.min_track_rows,
+                                 max_track_frames=options.max_track_frames)
+             for cam in sequence.robot.camera_segments)
+    return [obs for obs in found if obs is not None]
 
 
 def camera_chain(robot: Robot, cam: int, bending: Bending,

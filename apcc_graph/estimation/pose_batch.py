@@ -31,7 +31,7 @@ import gtsam
 import numpy as np
 
 from apcc_graph.estimation.batch_solve import BatchReport, ProjectionSolution
-from apcc_graph.estimation.graph import camera_observations, frame_key, prior_factors
+from apcc_graph.estimation.graph import frame_key, observed_cameras, prior_factors
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.factors.kinematic import segment_tie_factor
 from apcc_graph.factors.track_points import TrackObservations
@@ -100,15 +100,12 @@ class _Camera:
 
 
 def _cameras(sequence: Sequence, options: GraphOptions) -> list[_Camera]:
+    """Each observing camera with its first, model-free decisions."""
     out = []
-    for cam in sequence.robot.camera_segments:
-        obs = camera_observations(sequence, cam, options.threshold_px, options.min_track_rows,
-                                  max_track_frames=options.max_track_frames)
-        if obs is None:
-            continue
+    for obs in observed_cameras(sequence, options):
         bearings = np.column_stack([obs.xy, np.ones(len(obs))])
         weights = pair_inliers(obs.frames, obs.tracks, bearings).astype(float)
-        camera = sequence.robot.cameras[cam]
+        camera = sequence.robot.cameras[obs.camera]
         assert camera is not None
         out.append(_Camera(obs, camera.tip_T_cam, _square_root_information(obs.whiten),
                            weights))
