@@ -22,7 +22,7 @@ from apcc_graph.bench.real_robot import format_real_bench, run_real_bench
 from apcc_graph.calibration.backbone_fit import BackboneCalibration, fit_backbone
 from apcc_graph.calibration.backbone_model import pose_matrices, segment_transform
 from apcc_graph.cli import main
-from apcc_graph.evaluation.tip_floor import tip_errors, tip_floor
+from apcc_graph.evaluation.tip_floor import rotation_floor, tip_errors, tip_floor
 from apcc_graph.io import load_sequence, save_backbone_poses, save_sequence
 from apcc_graph.io.backbone_poses import BackbonePoses
 from apcc_graph.io.robot_file import load_markers, load_robot, save_robot
@@ -417,6 +417,31 @@ def test_floor_is_zero_on_model_tips_and_recovers_bends() -> None:
     assert np.sum(floor.errors.position**2) < np.sum(truth_errors.position**2)
 
 
+def test_rotation_floor_is_zero_on_model_tips_and_ignores_positions() -> None:
+    times = _times(60)
+    thetas, psis = _sweep(times)
+    bends = _bends(thetas, psis)
+    tips = ROBOT.forward(thetas, psis)
+    floor = rotation_floor(ROBOT, tips)
+    assert floor.errors.position.max() < 1e-9
+    assert np.abs(floor.bends - bends).max() < 1e-8
+    # Moving the measured positions leaves it where the rotations are (the true bends), while
+    # the position floor moves away from them; turning a tip moves it.
+    shifted = tips.copy()
+    shifted[:, 1, :3, 3] += [3e-3, -2e-3, 0.0]
+    assert np.abs(rotation_floor(ROBOT, shifted).bends - bends).max() < 1e-8
+    assert np.abs(tip_floor(ROBOT, shifted).bends - bends).max() > 1e-3
+    turned = tips.copy()
+    turned[:, 1, :3, :3] = turned[:, 1, :3, :3] @ Rotation.from_rotvec([0.02, 0.0, 0.0]).as_matrix()
+    moved = rotation_floor(ROBOT, turned)
+    assert np.abs(moved.bends - bends).max() > 1e-3
+    rel = np.swapaxes(moved.tips[..., :3, :3], -1, -2) @ turned[..., :3, :3]
+    fit = np.linalg.norm(Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec(), axis=-1)
+    rel = np.swapaxes(tips[..., :3, :3], -1, -2) @ turned[..., :3, :3]
+    truth = np.linalg.norm(Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec(), axis=-1)
+    assert np.sum(fit**2) < np.sum(truth**2)
+
+
 # -------------------------------------------------------------------------------- truth tips
 def test_truth_tips_round_trip(tmp_path: Path) -> None:
     poses, _, _ = _model_poses(20)
@@ -548,11 +573,13 @@ def test_bench_real_scores_each_stretch_and_pools_them(
                           start_sigma=math.radians(2.0), methods=("chain",),
                           recordings=("sweep",))
     by = {(r.version, r.method): r for r in rows}
-    assert set(by) == {("real", "floor"), ("real", "chain"), ("model-exact", "chain")}
+    assert set(by) == {("real", "floor"), ("real", "rot-floor"), ("real", "chain"),
+                       ("model-exact", "chain")}
     # both stretches (2.9 s and 3.5 s), every frame outside the gap, nothing across it
     assert all(r.frames == len(thetas) - gap.sum() for r in rows)
     # the data obey the model: the floor is the calibration's leftover, far below a millimetre
     assert np.all(by["real", "floor"].position < 0.3e-3), by["real", "floor"]
+    assert np.all(by["real", "rot-floor"].position < 1e-3), by["real", "rot-floor"]
     # the chain within millimetres on both versions (measured: 0.9 / 1.2 mm model-exact, and
     # 0.9 / 5.2 mm on the recording, where the floor is 0.06 mm)
     real, exact = by["real", "chain"].position, by["model-exact", "chain"].position

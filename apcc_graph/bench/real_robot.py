@@ -8,7 +8,9 @@ the floor's first configuration (the start given, with a prior). A last row, ``n
 a yardstick rather than an estimator: the batch with model noise started at the floor's bends of
 every frame, i.e. what the model-noise problem gives when its start is in the right basin.
 Each estimate's tips are compared with the measured tips beside the floor (the model's tips at the
-bends that best fit them); then the same for the model-exact version of the motion (the model's
+bends that best fit them) and the rotation floor (at the bends whose tip rotations best fit the
+measured ones, what tip cameras can deliver: :func:`~apcc_graph.evaluation.tip_floor.
+rotation_floor`); then the same for the model-exact version of the motion (the model's
 own tips at the floor's bends), where the floor is zero.
 
 The motion capture lost the robot now and then; nothing is made up across those gaps, so each
@@ -32,7 +34,13 @@ from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.evaluation.tip_floor import TipErrors, TipFloor, tip_errors, tip_floor
+from apcc_graph.evaluation.tip_floor import (
+    TipErrors,
+    TipFloor,
+    rotation_floor,
+    tip_errors,
+    tip_floor,
+)
 from apcc_graph.io.backbone_poses import load_backbone_poses
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
@@ -116,6 +124,8 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
         exact = replay_motion(model, ends, model_tips=floor.tips, bends=floor.bends, stretch=k,
                               **options).simulation.sequence
         errors.setdefault(("real", "floor"), []).append(floor.errors)
+        errors.setdefault(("real", "rot-floor"), []).append(
+            rotation_floor(model, real.truth_tips).errors)
         turns.append(_turns(real.truth_tips))
         for version, seq in (("real", real), ("model-exact", exact)):
             for method in methods:
@@ -173,6 +183,8 @@ def format_real_bench(rows: list[RealRow]) -> str:
         lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<10}{cells}{r.seconds:>9.1f}")
     lines.append("floor: the calibrated model's tips at the bends that best fit the measured "
                  "tips (zero on the model-exact motion)")
+    lines.append("rot-floor: the model's tips at the bends whose tip rotations best fit the "
+                 "measured ones (what tip cameras measure well): the camera-based yardstick")
     if any(r.method in ("noise", "noise@floor") for r in rows):
         lines.append("noise: the batch with model error as noise; noise@floor: the same started "
                      "at the floor's bends of every frame (a yardstick: the right basin given)")

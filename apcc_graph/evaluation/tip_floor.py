@@ -6,7 +6,8 @@ what the model itself can do: for each frame, the bending vectors that place the
 ends closest to the measured ones (least squares over the positions of all segment ends, the chain
 composed from the base as the estimators compose it). The RMS tip error of those model tips is the
 best any estimator with that model can do on tip position; estimated tips are compared with the
-measured tips beside it. On model-exact data the floor is zero.
+measured tips beside it. On model-exact data the floor is zero. The rotation floor
+(:func:`rotation_floor`) fits the tips' orientations instead: what tip cameras measure well.
 
 Tip errors: the position error (metres) of each segment end, and its tangent error, the angle
 between the estimated and measured backbone tangents (the z axes; radians).
@@ -14,10 +15,12 @@ between the estimated and measured backbone tangents (the z axes; radians).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial.transform import Rotation
 
 from apcc_graph.calibration.backbone_model import initial_bends, rigid_inverse, tangent_angles
 from apcc_graph.calibration.backbone_solve import best_bends
@@ -90,15 +93,9 @@ def _forward(robot: Robot, bends: FloatArray, world_T_base: FloatArray | None) -
     return robot.forward(theta, psi, world_T_base)
 
 
-def tip_floor(robot: Robot, measured: ArrayLike, world_T_base: ArrayLike | None = None
-              ) -> TipFloor:
-    """The floor of ``robot`` on ``(F, S, 4, 4)`` measured tips (module docstring).
-
-    Args:
-        robot: the model (its calibrated segments).
-        measured: measured ``world_T_tip`` of every segment end.
-        world_T_base: ``(F, 4, 4)`` base poses, or ``None`` for the fixed base at the origin.
-    """
+def _fit(robot: Robot, measured: ArrayLike, world_T_base: ArrayLike | None,
+         rows: Callable[[FloatArray, FloatArray], FloatArray]) -> TipFloor:
+    """Per frame, the bends minimising ``rows(model tips, measured tips)`` (``(F, k)``)."""
     tips = np.asarray(measured, dtype=float)
     n_frames, n_seg = tips.shape[:2]
     base = None if world_T_base is None else np.asarray(world_T_base, dtype=float)
@@ -108,8 +105,41 @@ def tip_floor(robot: Robot, measured: ArrayLike, world_T_base: ArrayLike | None 
 
     def rows_of(flat: FloatArray) -> FloatArray:
         model = _forward(robot, flat.reshape(n_frames, n_seg, 2), base)
-        return ((model[..., :3, 3] - tips[..., :3, 3]) / FLOOR_SIGMA).reshape(n_frames, 1, -1)
+        return rows(model, tips).reshape(n_frames, 1, -1)
 
     bends = best_bends(rows_of, start).reshape(n_frames, n_seg, 2)
     model = _forward(robot, bends, base)
     return TipFloor(bends, model, tip_errors(model, tips))
+
+
+def tip_floor(robot: Robot, measured: ArrayLike, world_T_base: ArrayLike | None = None
+              ) -> TipFloor:
+    """The floor of ``robot`` on ``(F, S, 4, 4)`` measured tips (module docstring).
+
+    Args:
+        robot: the model (its calibrated segments).
+        measured: measured ``world_T_tip`` of every segment end.
+        world_T_base: ``(F, 4, 4)`` base poses, or ``None`` for the fixed base at the origin.
+    """
+    return _fit(robot, measured, world_T_base,
+                lambda model, tips: (model[..., :3, 3] - tips[..., :3, 3]) / FLOOR_SIGMA)
+
+
+def rotation_floor(robot: Robot, measured: ArrayLike, world_T_base: ArrayLike | None = None
+                   ) -> TipFloor:
+    """The model's best fit to the measured tips' *orientations*, frame by frame.
+
+    A tip camera measures its own rotation far better than its position (over a short baseline a
+    narrow camera's translation trades off against its rotation), so an estimator that trusts
+    the images places each segment where the model's tip rotations match the measured ones.
+    Where the model misses the measured ends, those bends place the tips further from the
+    measured positions than the (position) floor of :func:`tip_floor`: the RMS tip error at
+    them is what a camera-based estimator with this model can be expected to reach. Arguments
+    as :func:`tip_floor`; the rows are the rotation vectors of ``model_R^T measured_R``.
+    """
+    def rows(model: FloatArray, tips: FloatArray) -> FloatArray:
+        rel = np.swapaxes(model[..., :3, :3], -1, -2) @ tips[..., :3, :3]
+        return Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec().reshape(
+            rel.shape[:-2] + (3,))
+
+    return _fit(robot, measured, world_T_base, rows)
