@@ -28,6 +28,9 @@ __all__ = ["kabsch", "pair_inliers", "relative_rotation"]
 def kabsch(a: FloatArray, b: FloatArray) -> FloatArray:
     """Rotations ``R`` minimising ``sum_i |a_i - R b_i|^2``, batched.
 
+    scipy's ``Rotation.align_vectors`` solves one problem per call; RANSAC scores all its
+    hypotheses of a frame pair in one call here.
+
     Args:
         a, b: ``(..., n, 3)`` paired vectors.
 
@@ -67,14 +70,13 @@ def relative_rotation(a: FloatArray, b: FloatArray, threshold: float,
     err = np.linalg.norm(a[None] - b[None] @ np.swapaxes(R, -1, -2), axis=-1)
     inliers = err < threshold
     best = inliers[int(np.argmax(inliers.sum(axis=1)))]
-    for _ in range(2):
+    R_best = None
+    for _ in range(2):  # refit to the inliers, then once more to the refit's inliers
         if best.sum() < 2:
-            break
+            return None, np.zeros(n, dtype=bool)
         R_best = kabsch(a[best], b[best])
         best = np.linalg.norm(a - b @ R_best.T, axis=1) < threshold
-    else:
-        return R_best, best
-    return None, np.zeros(n, dtype=bool)
+    return R_best, best
 
 
 def pair_inliers(frames: ArrayLike, tracks: ArrayLike, bearings: ArrayLike,
