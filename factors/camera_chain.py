@@ -85,6 +85,28 @@ def camera_poses(
     return poses, d_poses, d_cal
 
 
+def mount_derivatives(poses: FloatArray) -> FloatArray:
+    """``(F, 6, 4, 4)`` derivatives of ``world_T_cam`` in the camera mounting ``tip_T_cam``,
+    perturbed on the right as gtsam's ``Pose3`` is: ``tip_T_cam . Exp(xi)`` with ``xi = (omega,
+    v)``, rotation first, both in the camera frame. Since ``world_T_cam = P . tip_T_cam``, the
+    derivative in ``xi_i`` at ``xi = 0`` is ``world_T_cam . G_i`` with ``G_i`` the i-th
+    generator of se(3)."""
+    return np.einsum("fij,cjk->fcik", np.asarray(poses, dtype=float), _SE3_GENERATORS)
+
+
+def _generators() -> FloatArray:
+    G = np.zeros((6, 4, 4))
+    for i in range(3):
+        axis = np.zeros(3)
+        axis[i] = 1.0
+        G[i, :3, :3] = np.cross(np.eye(3), axis)  # hat(e_i): hat(w) @ v = w x v
+        G[3 + i, i, 3] = 1.0
+    return G
+
+
+_SE3_GENERATORS = _generators()
+
+
 @dataclass(frozen=True)
 class CameraChain:
     """What fixes one camera's pose given the frame vectors: the parameterisation of its
@@ -115,6 +137,11 @@ class CameraChain:
         base = None if self.world_T_base is None else self.world_T_base[rows]
         return camera_poses(x[:, :self.bending.dim], self.bending, self.tip_T_cam, base,
                             derivatives, calibration)
+
+    def with_mount(self, tip_T_cam: ArrayLike) -> CameraChain:
+        """The same chain with another camera mounting (mount calibration)."""
+        return CameraChain(self.bending, np.asarray(tip_T_cam, dtype=float),
+                           self.world_T_base, self.frame0)
 
     def with_segments(self, segments: Sequence[Segment]) -> CameraChain:
         """The same chain with other segment models (self-calibration)."""

@@ -19,9 +19,12 @@ vectorised over the chunk's observations (Python factors run serially).
 Self-calibration: with calibration keys, the factor also depends on one ``Vector2`` per segment
 ``0..c``, that segment's ``(k, delta_max)`` (key :func:`calibration_key`); its columns come after
 the frames' in ``H`` and ``g``, and the segments' values are read from those variables (clamped
-to their valid range) instead of the chain's.
+to their valid range) instead of the chain's. Mount calibration: with a mount key, the factor
+also depends on the camera's ``tip_T_cam`` (a ``Pose3``, key :func:`mount_key`), whose six
+columns come last; its value replaces the chain's mounting.
 
-Jacobian convention: the tangent space of a ``Vector`` is the identity (``x + dx``).
+Jacobian convention: the tangent space of a ``Vector`` is the identity (``x + dx``); that of
+a ``Pose3`` is gtsam's, ``T . Exp(xi)`` with ``xi = (omega, v)`` in the body frame.
 """
 
 from __future__ import annotations
@@ -54,6 +57,12 @@ def calibration_key(segment: int) -> int:
     """The graph key of segment ``segment``'s ``(k, delta_max)`` (a ``Vector2``; radians for
     ``delta_max``) when self-calibrating."""
     return int(gtsam.symbol("c", segment))
+
+
+def mount_key(camera: int) -> int:
+    """The graph key of camera ``camera``'s mounting ``tip_T_cam`` (a ``Pose3``; metres) when
+    calibrating the mounts."""
+    return int(gtsam.symbol("m", camera))
 
 
 def compress(H: FloatArray, g: FloatArray, cost: float) -> tuple[FloatArray, FloatArray]:
@@ -96,14 +105,17 @@ class ProjectionFactor:
             update the robust decisions between solves.
         calibrate: also depend on the ``(k, delta_max)`` variables (:func:`calibration_key`)
             of the chain's segments, whose values then replace the chain's.
+        mount: also depend on the camera's mounting (:func:`mount_key`), whose value then
+            replaces the chain's ``tip_T_cam``.
 
     The frames spanned are ``first .. last``; the factor's keys are their :func:`frame_key`,
-    then (with ``calibrate``) the calibration keys of segments ``0..c``. The latest points are
-    kept and start the next triangulation.
+    then (with ``calibrate``) the calibration keys of segments ``0..c``, then (with ``mount``)
+    the camera's mount key. The latest points are kept and start the next triangulation.
     """
 
     def __init__(self, obs: TrackObservations, chain: CameraChain, n_segments: int,
-                 weights: FloatArray | None = None, calibrate: bool = False) -> None:
+                 weights: FloatArray | None = None, calibrate: bool = False,
+                 mount: bool = False) -> None:
         if len(obs) == 0:
             raise ValueError("a projection factor needs at least one observation")
         self.obs, self.chain, self.n_segments = obs, chain, n_segments
@@ -116,23 +128,31 @@ class ProjectionFactor:
         self.frame_keys = [frame_key(int(f)) for f in self.frames]
         self.calibration_keys = ([calibration_key(j) for j in range(len(chain.segments))]
                                  if self.calibrate else [])
-        self.keys = self.frame_keys + self.calibration_keys
+        self.mount_keys = [mount_key(obs.camera)] if mount else []
+        self.keys = self.frame_keys + self.calibration_keys + self.mount_keys
         self.points: FloatArray | None = None
         self.norms: FloatArray | None = None  # residual norms of the last evaluation
         self.point_iterations = 10  # see reduced_system; 1 suits iSAM2's re-linearisations
-        self.dim = (len(self.frames) * self.n + 2 * len(self.calibration_keys) + 1)
+        self.dim = (len(self.frames) * self.n + 2 * len(self.calibration_keys)
+                    + 6 * len(self.mount_keys) + 1)
 
     def thetas(self, values: gtsam.Values) -> FloatArray:
         """``(F', S)`` the chunk's angles in ``values``."""
         return np.array([values.atVector(k) for k in self.frame_keys])
 
     def chain_at(self, values: gtsam.Values | None) -> CameraChain:
-        """The chain, with the calibration variables' segment models when calibrating."""
-        if not self.calibrate or values is None:
-            return self.chain
-        return self.chain.with_segments([
-            calibrated(seg, *values.atVector(key))
-            for seg, key in zip(self.chain.segments, self.calibration_keys, strict=True)])
+        """The chain, with the calibration variables' segment models and mounting when
+        calibrating them."""
+        chain = self.chain
+        if values is None:
+            return chain
+        if self.calibrate:
+            chain = chain.with_segments([
+                calibrated(seg, *values.atVector(key))
+                for seg, key in zip(chain.segments, self.calibration_keys, strict=True)])
+        if self.mount_keys:
+            chain = chain.with_mount(values.atPose3(self.mount_keys[0]).matrix())
+        return chain
 
     def system(self, thetas: FloatArray, jacobians: bool = True,
                chain: CameraChain | None = None) -> ReducedSystem:
@@ -141,7 +161,8 @@ class ProjectionFactor:
         out = reduced_system(self.obs, self.chain if chain is None else chain, thetas,
                              self.first, self.weights, self.points, jacobians,
                              calibration=self.calibrate and jacobians,
-                             point_iterations=self.point_iterations)
+                             point_iterations=self.point_iterations,
+                             mount=bool(self.mount_keys) and jacobians)
         self.points, self.norms = out.points, out.residuals
         return out
 
@@ -176,6 +197,9 @@ class ProjectionFactor:
         D0 = len(self.frame_keys) * n
         for j in range(len(self.calibration_keys)):
             H[len(self.frame_keys) + j] = np.asfortranarray(A[:, D0 + 2 * j:D0 + 2 * j + 2])
+        if self.mount_keys:
+            D1 = D0 + 2 * len(self.calibration_keys)
+            H[len(self.keys) - 1] = np.asfortranarray(A[:, D1:D1 + 6])
         return e
 
     def factor(self) -> gtsam.CustomFactor:

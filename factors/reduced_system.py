@@ -19,7 +19,8 @@ update them between solves (graduated non-convexity).
 
 Self-calibration: with ``calibration``, the system also has the ``2 m`` columns of the chain's
 ``m`` segments' ``(k, delta_max)``, after the frames' (``n`` columns per frame: ``m`` angles in
-fixed planes, or ``2 m`` bending-vector components).
+fixed planes, or ``2 m`` bending-vector components); with ``mount``, six more for the camera's
+mounting ``tip_T_cam`` (:func:`~apcc_graph.factors.camera_chain.mount_derivatives`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.camera_chain import CameraChain, mount_derivatives
 from apcc_graph.factors.track_points import TrackObservations, project_rows, segment_sum
 from apcc_graph.factors.triangulation import robust_triangulate, triangulate_rows
 from apcc_graph.model.arrays import FloatArray
@@ -57,21 +58,26 @@ class ReducedSystem:
 
 
 def _row_poses(chain: CameraChain, thetas: FloatArray, first: int, frames: NDArray[np.int64],
-               derivatives: bool, calibration: bool = False
+               derivatives: bool, calibration: bool = False, mount: bool = False
                ) -> tuple[FloatArray, FloatArray, FloatArray | None, FloatArray | None]:
     """Row-last camera orientation ``(3, 3, N)``, position ``(3, N)``, pose derivatives
-    ``(4, 4, n, N)`` of each row's frame and, with ``calibration``, their derivatives in
-    ``(k_0, delta_0, k_1, ...)``, ``(4, 4, 2 m, N)`` for the chain's ``m`` segments."""
+    ``(4, 4, n, N)`` of each row's frame and, with ``calibration`` or ``mount``, the
+    derivatives in the model parameters: ``(k_0, delta_0, k_1, ...)`` of the chain's ``m``
+    segments, then the mounting's six (:func:`mount_derivatives`), ``(4, 4, C, N)``."""
     out = chain.poses(thetas, first, derivatives, calibration)
     poses, d_poses = out[0], out[1]
     lf = frames - first
     P = np.moveaxis(poses, 0, -1)[:, :, lf]
     dP = None if d_poses is None else np.moveaxis(d_poses, (0, 1), (-1, -2))[..., lf]
-    dC = None
+    extra = []
     if calibration:
         d_cal = out[2]
         F, m = d_cal.shape[:2]
-        dC = np.moveaxis(d_cal.reshape(F, 2 * m, 4, 4), (0, 1), (-1, -2))[..., lf]
+        extra.append(d_cal.reshape(F, 2 * m, 4, 4))
+    if mount:
+        extra.append(mount_derivatives(poses))
+    dC = (np.moveaxis(np.concatenate(extra, axis=1), (0, 1), (-1, -2))[..., lf]
+          if extra else None)
     return np.ascontiguousarray(P[:3, :3]), np.ascontiguousarray(P[:3, 3]), dP, dC
 
 
@@ -107,7 +113,8 @@ def robust_residual_norms(obs: TrackObservations, chain: CameraChain, thetas: Fl
 def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArray, first: int,
                    weights: FloatArray, points: FloatArray | None = None,
                    jacobians: bool = True, refine_points: bool = True,
-                   calibration: bool = False, point_iterations: int = 10) -> ReducedSystem:
+                   calibration: bool = False, point_iterations: int = 10,
+                   mount: bool = False) -> ReducedSystem:
     """The chunk's reduced Gauss-Newton system (see the module docstring).
 
     Args:
@@ -123,6 +130,8 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
             Fisher information at known points, for the Cramer-Rao bound).
         calibration: add the ``2 m`` columns of the chain's ``m`` segments' ``(k,
             delta_max)`` after the frames' (``D = frames x n + 2 m``).
+        mount: add the six columns of the camera's mounting (a right perturbation of
+            ``tip_T_cam``, rotation first, as gtsam's ``Pose3``) after those.
         point_iterations: most triangulation iterations from ``points`` (from scratch: 10).
             With one step from a previous solution the points are not exactly optimal; the
             system is then the joint Gauss-Newton system in (angles, points) with the points
@@ -131,7 +140,7 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
             the default).
     """
     Rb, ob, dP, dC = _row_poses(chain, thetas, first, obs.frames, jacobians,
-                                jacobians and calibration)
+                                jacobians and calibration, jacobians and mount)
     pts = None if points is None else np.ascontiguousarray(points.T)
     if refine_points or pts is None:
         pts = triangulate_rows(obs, Rb, ob, weights, pts,
@@ -147,10 +156,7 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
     WA = proj.whitened_dm(obs.whiten_t) * sw  # (2, 3, N)
     Jp = np.einsum("ain,jin->ajn", WA, Rb)  # d r / d p = W dm/dq R^T
     Jt = _pose_jacobian(WA, Rb, dP, proj.d)  # (2, n, N)
-    Jc = None
-    if calibration:
-        assert dC is not None
-        Jc = _pose_jacobian(WA, Rb, dC, proj.d)  # (2, 2m, N)
+    Jc = None if dC is None else _pose_jacobian(WA, Rb, dC, proj.d)  # (2, C, N)
     lf = obs.frames - first
     H, g = _normal_equations(Jt, r, lf, len(thetas), Jc)
     M, y = _point_elimination(obs, Jt, Jp, r, lf, len(H), Jc)

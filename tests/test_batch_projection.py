@@ -19,6 +19,7 @@ from apcc_graph.estimation import batch_solve as batch_module
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate, projection_solve
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import CameraTerms
+from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 from apcc_graph.estimation.options import BatchOptions, Robustness
 from apcc_graph.estimation.robust import gnc_schedule
 from apcc_graph.evaluation.sequence_bound import sequence_bound
@@ -243,9 +244,9 @@ def _wrong_models(seq: Sequence, dk: float = 0.03, dd_deg: float = 3.0) -> Seque
 
 
 def test_noise_free_self_calibration_returns_the_true_models(robot: Robot) -> None:
-    """Wrong k and delta_max on every segment, noise-free pixels, loose calibration priors:
-    the angles and the models come back (the priors' pull is ~1e-6 here); without
-    calibration the same start stays degrees off."""
+    """Wrong k and delta_max on every segment, noise-free pixels, loose calibration priors
+    (the mounts held): the angles and the models come back (the priors' pull is ~1e-6
+    here); without calibration the same start stays degrees off."""
     sim = room(robot, 40, seed=2, noise_px=0.0, moving_base=True)
     seq = _wrong_models(sim.sequence)
     options = GraphOptions(motion_sigma=None, theta0_sigma=1e-9)  # no prior pulls the truth
@@ -253,27 +254,31 @@ def test_noise_free_self_calibration_returns_the_true_models(robot: Robot) -> No
                            options=options, marginals=False)
     assert np.abs(fixed.thetas - sim.sequence.thetas).max() > math.radians(0.2)
     est = batch_estimate(seq, theta0=sim.sequence.thetas[0], initial=sim.sequence.thetas,
-                         options=options, calibrate=True, calibration_sigmas=(10.0, 10.0))
+                         options=options, calibrate=True, calibration_sigmas=(10.0, 10.0),
+                         mount_sigmas=None)
     assert np.abs(est.thetas - sim.sequence.thetas).max() < 1e-5
     found = np.array([[s.k, s.delta_max] for s in est.robot.segments])
     truth = np.array([[s.k, s.delta_max] for s in robot.segments])
     np.testing.assert_allclose(found, truth, rtol=0, atol=1e-5)
     assert est.calibration_sigmas.shape == (3, 2)
     assert np.all(np.isfinite(est.calibration_sigmas))
+    assert est.mount_sigmas is None
 
 
 def test_self_calibration_sigmas_are_the_bound_of_the_models(robot: Robot) -> None:
     """On a noisy sequence the batch's calibration sigmas equal the Cramer-Rao bound of k and
     delta_max (same information, evaluated at the solution instead of the truth), and the
-    angle sigmas the bound with unknown models."""
+    angle sigmas the bound with unknown models and mounts, the mounts' sigmas theirs."""
     sim = room(robot, 120, seed=5)
     seq = _wrong_models(sim.sequence)
     sigmas = (0.05, math.radians(5.0))
     est = batch_estimate(seq, theta0=sim.sequence.thetas[0], initial=sim.sequence.thetas,
                          calibrate=True, calibration_sigmas=sigmas)
+    # The default self-calibration also estimates the mounts: the bound has them unknown too.
     bound = sequence_bound(sim, 1.0, PRIOR, max_track_frames=TRACK_FRAMES,
-                           calibration_sigmas=sigmas)
+                           calibration_sigmas=sigmas, mount_sigmas=MOUNT_SIGMAS)
     np.testing.assert_allclose(est.calibration_sigmas, bound.calibration, rtol=0.1)
+    np.testing.assert_allclose(est.mount_sigmas, bound.mounts, rtol=0.1)
     np.testing.assert_allclose(rms(est.sigmas), bound.rms(), rtol=0.1)
     # Within a few sigmas of the true models.
     found = np.array([[s.k, s.delta_max] for s in est.robot.segments])

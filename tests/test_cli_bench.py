@@ -101,6 +101,21 @@ def test_bench_selfcal_small_run(capsys) -> None:
     assert main(["bench", "selfcal", "--outliers", "1.5"]) == 1
 
 
+def test_bench_mounts_small_run(capsys) -> None:
+    assert main(["bench", "mounts", "--frames", "60", "--seeds", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    row = next(ln for ln in lines if re.match(r"\s+1\s+[\d.]+", ln))
+    cells = [float(v) for v in row.split()[1:]]
+    true, wrong, mounts, _, known, unknown, _ = (cells[3 * i:3 * i + 3] for i in range(7))
+    # Wrong mounts cost more than calibrating them away; unknown mounts bound above known.
+    assert sum(wrong) > sum(mounts) and sum(wrong) > sum(true)
+    assert all(u >= k for u, k in zip(unknown, known, strict=True))
+    found = [ln for ln in lines if ln.strip().startswith("seed 1 camera")]
+    assert len(found) == 3 and all(ln.count("[") == 6 for ln in found)
+    assert any("reported sigma / bound" in ln for ln in lines)
+    assert main(["bench", "mounts", "--outliers", "1.5"]) == 1
+
+
 def test_bench_spatial_solver_small_run(capsys) -> None:
     assert main(["bench", "spatial-solver", "--cases", "30", "--trials", "3", "--seed", "2"]) == 0
     text = capsys.readouterr().out

@@ -3,6 +3,7 @@ mistake ending in one line on stderr, exit code 1 and no traceback."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -153,3 +154,27 @@ def test_estimate_calibrate_writes_the_calibrated_robot(tmp_path: Path, capsys) 
     for a, b in zip(robot.segments, shipped.segments, strict=True):
         assert abs(a.k - b.k) < 0.05 and abs(a.delta_max - b.delta_max) < 0.05
         assert a.length == b.length
+    # By default the mounts are calibrated too, and reported with what the images leave open.
+    mounts = [ln for ln in text.splitlines() if ln.startswith("camera on segment ")]
+    assert len(mounts) == 3 and all("+/-" in ln for ln in mounts)
+    assert "the images do not tell its translation y" in text  # a planar robot's blind axis
+    assert "RMS angle sigma with the calibration" in text
+
+
+def test_estimate_calibrate_mounts_keeps_the_models(tmp_path: Path, capsys) -> None:
+    from apcc_graph.estimation.model_calibration import mount_error
+    from apcc_graph.io.robot_file import load_robot
+
+    out = tmp_path / "est"
+    assert main(["estimate", str(SAMPLE), "--method", "batch", "--calibrate", "mounts",
+                 "--out", str(out), THETA0]) == 0
+    text = capsys.readouterr().out
+    assert "k = " not in text and text.count("camera on segment ") == 3
+    robot = load_robot(out / "robot_calibrated.toml")
+    shipped = load_robot(DATA / "robots" / "planar_three.toml")
+    assert robot.segments == shipped.segments
+    moved = [mount_error(a.tip_T_cam, b.tip_T_cam)
+             for a, b in zip(robot.cameras, shipped.cameras, strict=True)]
+    # Simulated with the shipped mounts: they stay within a degree and a few mm, but move.
+    assert all(rot < math.radians(1.0) and pos < 0.005 for rot, pos in moved), moved
+    assert any(rot > 0.0 for rot, _ in moved)

@@ -76,8 +76,8 @@ def lens_robot() -> Robot:
     return Robot(SEGMENTS, [None, cam, cam])
 
 
-def _setup(robot: Robot, cam: int, seed: int, spatial: bool = False):
-    sim = simulate(robot, 10, noise_px=1.0, seed=seed, scene="room", n_points=400,
+def _setup(robot: Robot, cam: int, seed: int, spatial: bool = False, noise_px: float = 1.0):
+    sim = simulate(robot, 10, noise_px=noise_px, seed=seed, scene="room", n_points=400,
                    moving_base=True, fps=FAST, spatial=spatial)
     seq = sim.sequence
     camera = robot.cameras[cam]
@@ -132,16 +132,7 @@ def test_calibration_information_is_the_gauss_newton_curvature(lens_robot: Robot
     Hessian in (angles, calibration) is exactly 2 H: check H's calibration rows against central
     differences of the reduced gradient."""
     cam = 2
-    sim = simulate(lens_robot, 10, noise_px=0.0, seed=41, scene="room", n_points=400,
-                   moving_base=True, fps=FAST)
-    seq = sim.sequence
-    camera = lens_robot.cameras[cam]
-    tracks = seq.tracks[cam]
-    xy = camera.normalized(tracks.uv)
-    obs = build_observations(cam, tracks.frames, tracks.track_ids, xy,
-                             camera.pixel_jacobian(xy), None)
-    chain = CameraChain(Bending.fixed(lens_robot.segments), camera.tip_T_cam,
-                        seq.world_T_base)
+    seq, obs, chain, _ = _setup(lens_robot, cam, 41, noise_px=0.0)
     w = np.ones(len(obs))
     out = reduced_system(obs, chain, seq.thetas, 0, w, calibration=True)
     assert out.cost < 1e-12

@@ -20,6 +20,7 @@ from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.bends import start_vector
 from apcc_graph.estimation.blackout import BlackoutWarning
 from apcc_graph.estimation.graph import camera_chain, camera_observations, limit_factor
+from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 from apcc_graph.estimation.options import BatchOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
@@ -201,9 +202,9 @@ def _wrong_models(seq: Sequence, dk: float = 0.03, dd_deg: float = 3.0) -> Seque
 
 def test_self_calibration_of_a_spatial_robot(robot) -> None:
     """Wrong k and delta_max on every segment of a robot that bends in 3-D: the batch in
-    bending vectors finds the models within a few of its sigmas, and its sigmas are the
-    Cramer-Rao bound of the models with the planes free; without self-calibration the bends
-    are several times worse."""
+    bending vectors finds the models within a few of its sigmas, and its sigmas (of the models
+    and, by default, the mounts) are the Cramer-Rao bound with the planes free; without
+    self-calibration the bends are several times worse than with the models calibrated."""
     sim = simulate(robot, 60, noise_px=1.0, seed=21, scene="room", spatial=True, fps=10.0)
     seq = _wrong_models(sim.sequence)
     sigmas = (0.05, math.radians(5.0))
@@ -213,12 +214,18 @@ def test_self_calibration_of_a_spatial_robot(robot) -> None:
     found = np.array([[s.k, s.delta_max] for s in est.robot.segments])
     truth = np.array([[s.k, s.delta_max] for s in robot.segments])
     assert np.all(np.abs(found - truth) < 4.0 * est.calibration_sigmas), (found, truth)
-    bound = sequence_bound(sim, 1.0, calibration_sigmas=sigmas, spatial=True)
+    # The default self-calibration also estimates the mounts: the bound has them unknown too.
+    bound = sequence_bound(sim, 1.0, calibration_sigmas=sigmas, spatial=True,
+                           mount_sigmas=MOUNT_SIGMAS)
     np.testing.assert_allclose(est.calibration_sigmas, bound.calibration, rtol=0.15)
+    np.testing.assert_allclose(est.mount_sigmas, bound.mounts, rtol=0.15)
     err = est.rms(seq.thetas, seq.psis)
     assert np.all(err < 2.0 * bound.rms()), (np.degrees(err), np.degrees(bound.rms()))
     blind = estimate(seq, method="batch", **start)
-    assert np.max(blind.rms(seq.thetas, seq.psis)) > 3.0 * np.max(err)
+    models = estimate(seq, method="batch", **start, settings=BatchOptions(
+        calibrate=True, calibration_sigmas=sigmas, mount_sigmas=None))
+    assert np.max(blind.rms(seq.thetas, seq.psis)) > 3.0 * np.max(models.rms(seq.thetas,
+                                                                             seq.psis))
 
 
 # ------------------------------------------------------------------------------ batch

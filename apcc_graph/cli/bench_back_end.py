@@ -1,5 +1,6 @@
 """``apcc-graph bench`` for the back end: the estimators against the Cramér-Rao bound
-(``smoother``), self-calibration against its bound (``selfcal``), the whole pipeline on
+(``smoother``), self-calibration against its bound (``selfcal``, and of the camera mounts
+``mounts``), the whole pipeline on
 rendered images (``images``) and robots that bend in 3-D (``spatial``)."""
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ EXAMPLES = {
     "smoother": "apcc-graph bench smoother\n  apcc-graph bench smoother --frames 120 --seeds 1,2 "
     "--long-frames 0 --memory-frames 0 --methods chain,smoother",
     "selfcal": "apcc-graph bench selfcal --frames 600 --seeds 1,2,3",
+    "mounts": "apcc-graph bench mounts --frames 600 --seeds 1,2,3 --deg 2 --mm 5",
     "images": "apcc-graph bench images --frames 150 --seeds 1,2,3,4,5",
     "spatial": "apcc-graph bench spatial\n  apcc-graph bench spatial --frames 150 --seeds 1",
     "young-tracks": "apcc-graph bench young-tracks --frames 300 --seeds 0,1,2",
@@ -57,19 +59,9 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                      help="frames of the memory run (0 to skip)")
     smb.set_defaults(run=run_smoother)
 
-    scb = _bench(
-        benches, "selfcal", "1,2,3",
-        help="self-calibration of k and delta_max beside the Cramer-Rao bound",
-        description="Simulate room-scene sequences of the 3-segment robot, give the batch "
-        "segment models with k and delta_max off, and compare the batch with the true "
-        "models, the wrong ones and the wrong ones self-calibrated, beside the bound with "
-        "the models known and unknown (which also bounds k and delta_max).",
-        parents=[frames_option(600, minimum=30)])
-    scb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction")
-    scb.add_argument("--dk", type=float, default=0.03, help="error of every segment's k")
-    scb.add_argument("--dd-deg", type=float, default=3.0,
-                     help="error of every segment's delta_max, degrees")
-    scb.set_defaults(run=run_selfcal)
+    _add_selfcal(benches)
+
+    _add_mounts(benches)
 
     imb = _bench(
         benches, "images", "1,2,3,4,5",
@@ -112,6 +104,41 @@ def _add_young_tracks(benches: argparse._SubParsersAction) -> None:
         parents=[frames_option(300, minimum=30)])
     ytb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction")
     ytb.set_defaults(run=run_young_tracks)
+
+
+def _add_selfcal(benches: argparse._SubParsersAction) -> None:
+    """Add ``bench selfcal``."""
+    scb = _bench(
+        benches, "selfcal", "1,2,3",
+        help="self-calibration of k and delta_max beside the Cramer-Rao bound",
+        description="Simulate room-scene sequences of the 3-segment robot, give the batch "
+        "segment models with k and delta_max off, and compare the batch with the true "
+        "models, the wrong ones and the wrong ones self-calibrated, beside the bound with "
+        "the models known and unknown (which also bounds k and delta_max).",
+        parents=[frames_option(600, minimum=30)])
+    scb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction")
+    scb.add_argument("--dk", type=float, default=0.03, help="error of every segment's k")
+    scb.add_argument("--dd-deg", type=float, default=3.0,
+                     help="error of every segment's delta_max, degrees")
+    scb.set_defaults(run=run_selfcal)
+
+def _add_mounts(benches: argparse._SubParsersAction) -> None:
+    """Add ``bench mounts``."""
+    mnb = _bench(
+        benches, "mounts", "1,2,3",
+        help="calibration of the camera mounts beside the Cramer-Rao bound",
+        description="Simulate room-scene sequences of the 3-segment robot, give the batch "
+        "camera mounts turned by --deg and moved by --mm, and compare the batch with the "
+        "true mounts, the wrong ones, the wrong ones calibrated, and calibrated with the "
+        "segment models, beside the bound with the mounts known and unknown (which also "
+        "bounds the mounts).",
+        parents=[frames_option(600, minimum=30)])
+    mnb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction")
+    mnb.add_argument("--deg", type=non_negative, default=2.0,
+                     help="rotation error of every mount, degrees (default: %(default)s)")
+    mnb.add_argument("--mm", type=non_negative, default=5.0,
+                     help="translation error of every mount, mm (default: %(default)s)")
+    mnb.set_defaults(run=run_mounts)
 
 
 def run_smoother(args: argparse.Namespace) -> str:
@@ -174,6 +201,18 @@ def run_selfcal(args: argparse.Namespace) -> str:
         frames=args.frames, seeds=int_list(args.seeds, "--seeds"), outliers=args.outliers,
         dk=args.dk, dd=math.radians(args.dd_deg), progress=True)
     return format_self_calibration_benchmark(result)
+
+
+def run_mounts(args: argparse.Namespace) -> str:
+    """Run the mount-calibration benchmark; return its table."""
+    from apcc_graph.bench.mount_calibration import format_mount_benchmark, run_mount_benchmark
+
+    if not 0.0 <= args.outliers < 1.0:
+        raise UserError(f"--outliers {args.outliers!r}: expected a fraction in [0, 1)")
+    result = run_mount_benchmark(frames=args.frames, seeds=int_list(args.seeds, "--seeds"),
+                                 outliers=args.outliers, deg=args.deg, mm=args.mm,
+                                 progress=True)
+    return format_mount_benchmark(result)
 
 
 def run_images(args: argparse.Namespace) -> str:

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,8 +23,15 @@ from apcc_graph.cli.common import (
 )
 from apcc_graph.model.robot import Robot
 
+if TYPE_CHECKING:
+    from apcc_graph.estimation.result import Estimate
+
 EXAMPLE = ("example:\n  apcc-graph estimate data/sequences/planar_three --method batch "
            "--out /tmp/est --theta0-deg 20.5,-15.2,21.3")
+
+
+CALIBRATE_CHOICES = ("all", "models", "mounts")
+"""What ``--calibrate`` estimates: everything, the segment models, or the camera mounts."""
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -67,9 +76,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      help="model error as noise (--method batch): how far a segment's tip may "
                      "depart from its kinematic model, position in mm and rotation in degrees, "
                      "e.g. 1,0.5 (default: the exact model); docs/estimation.md")
-    est.add_argument("--calibrate", action="store_true",
-                     help="self-calibration: estimate each segment's k and delta_max with the "
-                     "angles (--method batch); it writes robot_calibrated.toml")
+    est.add_argument("--calibrate", nargs="?", const="all", default=None,
+                     choices=CALIBRATE_CHOICES,
+                     help="self-calibration (--method batch): estimate with the angles each "
+                     "segment's k and delta_max (models), each camera's mounting tip_T_cam "
+                     "(mounts), or both (all, the default), with their sigmas; it writes "
+                     "robot_calibrated.toml. Both at once can cost the angles far more "
+                     "than either alone where the motion does not tell a mount from the "
+                     "model (docs/estimation.md, 'Self-calibration')")
     many = est.add_argument_group(
         "many sequences", "with several sequences, each goes to --out/<name>/ and --out gets\n"
         "summary.csv; a re-run skips sequences whose outputs are complete (--force redoes\n"
@@ -160,7 +174,12 @@ def _options(args: argparse.Namespace) -> dict:
     if args.calibrate:
         if args.method != "batch":
             raise UserError("--calibrate: self-calibration runs in --method batch")
-        options["settings"] = BatchOptions(calibrate=True)
+        settings = BatchOptions(calibrate=True)
+        if args.calibrate == "mounts":
+            settings = replace(settings, calibration_sigmas=None)
+        elif args.calibrate == "models":
+            settings = replace(settings, mount_sigmas=None)
+        options["settings"] = settings
     return options
 
 
@@ -189,6 +208,43 @@ def _run_many(args: argparse.Namespace) -> str:
     runs = estimate_many(folders, args.out, args.method, options, workers=args.workers,
                          scheduler=args.scheduler, redo=args.force, progress=True)
     return format_runs(runs, args.out)
+
+
+def calibration_lines(given: Robot, result: Estimate,
+                      mount_prior: tuple[float, float] | None = None) -> list[str]:
+    """What self-calibration found: each segment's k and delta_max, and each calibrated
+    camera's mount as a change from ``given``'s (rotations about the camera's axes in degrees,
+    translations along them in mm), each with its standard deviation; the mount components
+    whose sigma is within 10% of ``mount_prior``'s (default the library's) are named as not
+    told by the images."""
+    from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS, mount_change
+
+    prior = np.repeat(MOUNT_SIGMAS if mount_prior is None else mount_prior, 3)
+    names = ("rotation x", "rotation y", "rotation z", "translation x", "translation y",
+             "translation z")
+
+    lines = []
+    if result.calibration_sigmas is not None:
+        for i, (seg, sig) in enumerate(zip(result.robot.segments, result.calibration_sigmas,
+                                           strict=True)):
+            lines.append(f"segment {i + 1}: k = {seg.k:.4f} +/- {sig[0]:.4f}, delta_max = "
+                         f"{math.degrees(seg.delta_max):.3f} +/- {math.degrees(sig[1]):.3f} deg")
+    for i, sig in enumerate([] if result.mount_sigmas is None else result.mount_sigmas):
+        before, after = given.cameras[i], result.robot.cameras[i]
+        if before is None or after is None or np.isnan(sig).all():
+            continue
+        xi = mount_change(after.tip_T_cam, before.tip_T_cam)
+        rot = ", ".join(f"{math.degrees(v):+.3f} +/- {math.degrees(s):.3f}"
+                        for v, s in zip(xi[:3], sig[:3], strict=True))
+        pos = ", ".join(f"{v * 1e3:+.2f} +/- {s * 1e3:.2f}"
+                        for v, s in zip(xi[3:], sig[3:], strict=True))
+        lines.append(f"camera on segment {i + 1}: mount moved from the robot file's by "
+                     f"rotations about x, y, z {rot} deg; translations {pos} mm")
+        blind = [name for name, s, p in zip(names, sig, prior, strict=True) if s > 0.9 * p]
+        if blind:
+            lines.append(f"  the images do not tell its {', '.join(blind)} (sigma near the "
+                         "prior's): the robot file's value stays")
+    return lines
 
 
 def _run_one(args: argparse.Namespace, folder: str) -> str:
@@ -226,11 +282,13 @@ def _run_one(args: argparse.Namespace, folder: str) -> str:
             lines.append("  in the bending planes " + ", ".join(
                 f"{math.degrees(p):.1f}" for p in found.psi0) + " deg (sigmas: along each "
                 "bending vector's worst-determined direction)")
-    if args.calibrate and result.calibration_sigmas is not None:
-        for i, (seg, sig) in enumerate(zip(result.robot.segments, result.calibration_sigmas,
-                                           strict=True)):
-            lines.append(f"segment {i + 1}: k = {seg.k:.4f} +/- {sig[0]:.4f}, delta_max = "
-                         f"{math.degrees(seg.delta_max):.3f} +/- {math.degrees(sig[1]):.3f} deg")
+    if args.calibrate:
+        lines += calibration_lines(sequence.robot, result)
+        sigma = np.degrees(np.sqrt(np.nanmean(result.bend_sigmas() ** 2, axis=0)))
+        lines.append("RMS angle sigma with the calibration: " + ", ".join(
+            f"segment {i + 1} {v:.3f} deg" for i, v in enumerate(sigma)) + " (models and "
+            "mounts at once can cost the angles far more than either alone: compare "
+            "--calibrate models and --calibrate mounts)")
     if sequence.thetas is not None:  # evaluation only: the estimator never read these
         rms = np.degrees(result.rms(sequence.thetas, sequence.psis))
         what = " (bending vector)" if result.spatial else ""

@@ -34,6 +34,7 @@ from apcc_graph.estimation.batch_solve import (
 )
 from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
 from apcc_graph.estimation.chain import chain_vectors
+from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 from apcc_graph.estimation.options import INITS, GraphOptions, Robustness
 from apcc_graph.estimation.pose_batch import pose_solve
 from apcc_graph.estimation.result import Estimate
@@ -41,7 +42,6 @@ from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
-from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 
 
@@ -84,8 +84,9 @@ def batch_estimate(
     init: str = "chain",
     robustness: Robustness | None = None,
     calibrate: bool = False,
-    calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0)),
+    calibration_sigmas: tuple[float, float] | None = (0.05, math.radians(5.0)),
     psi0: ArrayLike | None = None,
+    mount_sigmas: tuple[float, float] | None = MOUNT_SIGMAS,
     spatial: bool = False,
 ) -> Estimate:
     """Optimise all frames and segments jointly.
@@ -110,9 +111,13 @@ def batch_estimate(
             the GNC continuation).
         calibrate: self-calibration: estimate each segment's k and
             delta_max jointly with the bends, with priors of ``calibration_sigmas``
-            (k, delta_max in radians) around the robot's values. The estimate's ``robot``
-            then holds the calibrated segments and ``calibration_sigmas`` their marginal
-            standard deviations.
+            (k, delta_max in radians) around the robot's values (``None`` holds them). The
+            estimate's ``robot`` then holds the calibrated segments and
+            ``calibration_sigmas`` their marginal standard deviations. With ``mount_sigmas``
+            (radians, metres) each observed camera's mounting ``tip_T_cam`` is estimated
+            too, with a prior of those standard deviations on each axis around the robot's
+            (``None`` holds the mounts); the estimate's ``robot`` holds them and
+            ``mount_sigmas`` their standard deviations.
         psi0: ``(S,)`` the bending planes at frame 0 (radians; default 0); ``spatial`` only.
         spatial: the robot bends in 3-D: every frame's unknowns are its bending vectors,
             smooth through straight, and the estimate has ``psis`` and ``psi_sigmas``
@@ -123,7 +128,7 @@ def batch_estimate(
 
     Raises:
         ValueError: a bad ``init``, ``theta0``, ``psi0`` or ``initial``; ``calibrate`` with a
-            ``model_sigma``.
+            ``model_sigma``, or with neither ``calibration_sigmas`` nor ``mount_sigmas``.
     """
     options = GraphOptions() if options is None else options
     if init not in INITS:
@@ -131,6 +136,9 @@ def batch_estimate(
     if calibrate and options.model_sigma is not None:
         raise ValueError("self-calibration (calibrate) needs the exact model: "
                          "GraphOptions.model_sigma = None")
+    if calibrate and calibration_sigmas is None and mount_sigmas is None:
+        raise ValueError("self-calibration (calibrate) with calibration_sigmas = None and "
+                         "mount_sigmas = None calibrates nothing: give either")
     robot = sequence.robot
     bending = parameterisation(robot, spatial)
     x0 = start_vector(robot, bending, theta0, psi0)
@@ -138,17 +146,20 @@ def batch_estimate(
                                        options, robustness, progress)
     if options.model_sigma is None:
         found = projection_solve(sequence, initial, x0, options, robustness, max_iterations,
-                                 marginals=marginals, progress=progress, calibrate=calibrate,
-                                 calibration_sigmas=calibration_sigmas, bending=bending)
+                                 marginals=marginals, progress=progress,
+                                 calibration_sigmas=calibration_sigmas if calibrate else None,
+                                 bending=bending,
+                                 mount_sigmas=mount_sigmas if calibrate else None)
     else:
         found = pose_solve(sequence, initial, x0, options, robustness, max_iterations,
                            marginals=marginals, bending=bending)
-    if found.segments is not None:
-        robot = Robot(found.segments, robot.cameras)
+    cal, std = found.calibration, found.calibration_std
     status = np.where(np.char.startswith(status, "initial"), "initial", "ok").astype("<U24")
-    return bending_estimate("batch", sequence, bending, found.x, found.blocks, status,
-                            found.inliers, robot=robot,
-                            calibration_sigmas=found.calibration_sigmas)
+    return bending_estimate(
+        "batch", sequence, bending, found.x, found.blocks, status, found.inliers,
+        robot=robot if cal is None else cal.robot(robot),
+        calibration_sigmas=None if std is None else std.segments,
+        mount_sigmas=None if std is None else std.mount_table(robot.n_segments))
 
 
 __all__ = ["BatchReport", "GraphOptions", "ProjectionSolution", "Robustness", "batch_estimate",

@@ -24,18 +24,17 @@ from apcc_graph.estimation.graph import (
     calibration_factors,
     camera_chain,
     frame_key,
+    mount_factors,
     observed_cameras,
     prior_factors,
     thetas_from,
     values_from,
 )
+from apcc_graph.estimation.model_calibration import ModelCalibration
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.robust import gnc_start
-from apcc_graph.factors.projection import calibrated, calibration_key
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
-from apcc_graph.model.robot import Robot
-from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence
 
 
@@ -50,19 +49,20 @@ class BatchReport:
 
 
 def build_terms(sequence: Sequence, options: GraphOptions, bending: Bending | None = None,
-                calibrate: bool = False) -> list[CameraTerms]:
+                calibrate: bool = False, mounts: bool = False) -> list[CameraTerms]:
     """The projection terms of every camera of the sequence that has tracks, over frame
-    vectors of ``bending`` (default: the planar robot's fixed planes). The sequence's
-    ``psis`` are ground truth, which no estimator reads."""
+    vectors of ``bending`` (default: the planar robot's fixed planes); with ``calibrate`` and
+    ``mounts`` they also depend on the segment models and each camera's mounting. The
+    sequence's ``psis`` are ground truth, which no estimator reads."""
     bending = Bending.fixed(sequence.robot.segments) if bending is None else bending
     return [CameraTerms(obs, camera_chain(sequence.robot, obs.camera, bending,
                                           sequence.world_T_base),
-                        bending.dim, options.frames_per_chunk, calibrate)
+                        bending.dim, options.frames_per_chunk, calibrate, mounts)
             for obs in observed_cameras(sequence, options)]
 
 
 def _values_and_ordering(thetas: FloatArray, frames: SequenceOf[int],
-                         calibration: FloatArray | None
+                         calibration: ModelCalibration | None
                          ) -> tuple[gtsam.Values, gtsam.Ordering]:
     """Values of the angles (and calibration); frames in time order (the graph is banded),
     then the calibration variables, which every camera's factors share."""
@@ -71,18 +71,18 @@ def _values_and_ordering(thetas: FloatArray, frames: SequenceOf[int],
     for f in frames:
         ordering.push_back(frame_key(f))
     if calibration is not None:
-        for j, kd in enumerate(calibration):
-            values.insert(calibration_key(j), np.asarray(kd, dtype=float))
-            ordering.push_back(calibration_key(j))
+        calibration.insert(values)
+        for key in calibration.keys():
+            ordering.push_back(key)
     return values, ordering
 
 
 def optimise(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, frames: SequenceOf[int],
              max_iterations: int, relative_tolerance: float = 1e-6,
-             calibration: FloatArray | None = None
-             ) -> tuple[FloatArray, int, FloatArray | None]:
-    """Levenberg-Marquardt from ``thetas`` (and ``calibration``, ``(S, 2)`` k and delta_max,
-    when self-calibrating); the optimised angles, iterations and calibration."""
+             calibration: ModelCalibration | None = None
+             ) -> tuple[FloatArray, int, ModelCalibration | None]:
+    """Levenberg-Marquardt from ``thetas`` (and ``calibration``, when self-calibrating); the
+    optimised angles, iterations and calibration."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(relative_tolerance)
@@ -91,19 +91,18 @@ def optimise(graph: gtsam.NonlinearFactorGraph, thetas: FloatArray, frames: Sequ
     params.setOrdering(ordering)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = optimizer.optimize()
-    cal = (None if calibration is None else
-           np.array([result.atVector(calibration_key(j)) for j in range(len(calibration))]))
+    cal = None if calibration is None else calibration.read(result)
     return thetas_from(result, frames), int(optimizer.iterations()), cal
 
 
 def marginal_blocks(graph: gtsam.NonlinearFactorGraph, x: FloatArray,
                     frames: SequenceOf[int], width: int, dense_limit: int = 6000,
-                    calibration: FloatArray | None = None
-                    ) -> tuple[FloatArray, FloatArray | None]:
+                    calibration: ModelCalibration | None = None
+                    ) -> tuple[FloatArray, ModelCalibration | None]:
     """Marginal covariances at the solution: ``(F, S, w, w)`` of each segment's ``w =
     width`` components of the frame vectors ``x`` ``(F, w S)`` and, when self-calibrating,
-    ``(S, 2)`` standard deviations of each segment's k and delta_max; NaN where the system is
-    undetermined.
+    the standard deviations of the calibrated parameters (:class:`ModelCalibration`); NaN
+    where the system is undetermined.
 
     Up to ``dense_limit`` unknowns, the information matrix of the graph linearised at ``x`` is
     inverted densely (far faster than gtsam's per-variable ``marginalCovariance`` on this
@@ -112,8 +111,8 @@ def marginal_blocks(graph: gtsam.NonlinearFactorGraph, x: FloatArray,
     n_frames, P = x.shape
     shape = (n_frames, P // width, width, width)
     values, ordering = _values_and_ordering(x, frames, calibration)
-    nan = (np.full(shape, np.nan),
-           None if calibration is None else np.full(calibration.shape, np.nan))
+    nan = (np.full(shape, np.nan), None if calibration is None
+           else calibration.sigmas_from(np.full(calibration.size, np.nan)))
     if x.size <= dense_limit:
         info, _ = graph.linearize(values).hessian(ordering)
         try:
@@ -125,7 +124,7 @@ def marginal_blocks(graph: gtsam.NonlinearFactorGraph, x: FloatArray,
         cal = None
         if calibration is not None:
             tail = L_inv[:, x.size:]
-            cal = np.sqrt(np.einsum("ij,ij->j", tail, tail)).reshape(calibration.shape)
+            cal = calibration.sigmas_from(np.sqrt(np.einsum("ij,ij->j", tail, tail)))
         rows = L_inv[:, :x.size].reshape(len(info), *shape[:3])
         return np.einsum("nfsi,nfsj->fsij", rows, rows), cal
     try:
@@ -137,9 +136,9 @@ def marginal_blocks(graph: gtsam.NonlinearFactorGraph, x: FloatArray,
         cov = found.marginalCovariance(frame_key(f))
         for s in range(shape[1]):
             out[i, s] = cov[width * s:width * (s + 1), width * s:width * (s + 1)]
-    cal = (None if calibration is None else np.array([
-        np.sqrt(np.maximum(np.diag(found.marginalCovariance(calibration_key(j))), 0.0))
-        for j in range(len(calibration))]))
+    cal = (None if calibration is None else calibration.sigmas_from(np.concatenate([
+        np.sqrt(np.maximum(np.diag(found.marginalCovariance(key)), 0.0))
+        for key in calibration.keys()])))
     return out, cal
 
 
@@ -153,17 +152,16 @@ class ProjectionSolution:
             (radians squared; NaN where undetermined or not asked for).
         inliers: ``(F, S)`` observations judged inliers per frame and camera.
         report: what the solver did.
-        segments: the self-calibrated segment models, or ``None``.
-        calibration_sigmas: ``(S, 2)`` marginal standard deviations of k and delta_max
-            (radians), or ``None``.
+        calibration: the self-calibrated model parameters, or ``None``.
+        calibration_std: their marginal standard deviations, or ``None``.
     """
 
     x: FloatArray
     blocks: FloatArray
     inliers: NDArray[np.int64]
     report: BatchReport
-    segments: tuple[Segment, ...] | None = None
-    calibration_sigmas: FloatArray | None = None
+    calibration: ModelCalibration | None = None
+    calibration_std: ModelCalibration | None = None
 
     @property
     def sigmas(self) -> FloatArray:
@@ -176,9 +174,9 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
                      options: GraphOptions, robustness: Robustness | None = None,
                      max_iterations: int = 30, max_final_rounds: int = 4,
                      marginals: bool = True, progress: bool = False,
-                     calibrate: bool = False,
-                     calibration_sigmas: tuple[float, float] = (0.05, math.radians(5.0)),
-                     bending: Bending | None = None) -> ProjectionSolution:
+                     calibration_sigmas: tuple[float, float] | None = None,
+                     bending: Bending | None = None,
+                     mount_sigmas: tuple[float, float] | None = None) -> ProjectionSolution:
     """Frame vectors, covariances and inliers of the projection batch, started at
     ``initial``.
 
@@ -195,9 +193,13 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         max_final_rounds: most repetitions of the last stage while decisions change.
         marginals: compute marginal sigmas (otherwise NaN).
         progress: show a progress bar over the stages.
-        calibrate: estimate each segment's k and delta_max too, with priors of
-            ``calibration_sigmas`` (k, radians) around the robot's values.
+        calibration_sigmas: estimate each segment's k and delta_max too, with priors of
+            these standard deviations (k, radians) around the robot's values; ``None`` holds
+            them.
         bending: the parameterisation (default: the planar robot's fixed planes).
+        mount_sigmas: estimate each observed camera's mounting too, with priors of these
+            standard deviations (radians, metres; :func:`mount_factors`) around the robot's;
+            ``None`` holds the mounts.
     """
     robustness = Robustness() if robustness is None else robustness
     inlier_sigmas = robustness.inlier_sigmas
@@ -205,11 +207,14 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     robot = sequence.robot
     bending = Bending.fixed(robot.segments) if bending is None else bending
     frames = range(sequence.n_frames)
-    terms = build_terms(sequence, options, bending, calibrate)
-    graph = _graph(sequence, terms, theta0, options,
-                   calibration_sigmas if calibrate else None, bending)
+    calibrate = calibration_sigmas is not None
+    terms = build_terms(sequence, options, bending, calibrate, mount_sigmas is not None)
+    cal: ModelCalibration | None = ModelCalibration.of(
+        robot, calibrate, [t.camera for t in terms] if mount_sigmas is not None else [])
+    cal = None if cal.empty else cal
+    graph = _graph(sequence, terms, theta0, options, calibration_sigmas, bending,
+                   mount_sigmas)
     thetas = np.array(initial, dtype=float)
-    cal = (np.array([[s.k, s.delta_max] for s in robot.segments]) if calibrate else None)
     # One bar over every long stage: triangulation, the outlier rounds, the marginals.
     bar = tqdm(total=max_final_rounds + 2, desc="batch", disable=not progress, leave=False)
     bar.set_postfix_str("triangulating the tracks")
@@ -225,9 +230,10 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     for stage, mu in enumerate(stages):
         bar.set_postfix_str(f"outlier round {stage + 1} of at most {len(stages)}")
         if stage > 0:
-            segments = None if cal is None else _segments(robot, cal)
+            segments = None if cal is None else cal.segment_models(robot)
             for t in terms:
-                t.measure(thetas, segments=segments)
+                t.measure(thetas, segments=segments,
+                          tip_T_cam=None if cal is None else cal.mount(t.camera))
         changed = sum(t.set_weights(inlier_sigmas, mu) for t in terms)
         if stage >= len(schedule) and changed == 0:
             break
@@ -238,7 +244,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         bar.update()
     bar.n = len(stages) + 1
     bar.set_postfix_str("marginal sigmas")
-    blocks, cal_sigmas = _uncertainty(graph, thetas, frames, bending, cal, marginals)
+    blocks, cal_std = _uncertainty(graph, thetas, frames, bending, cal, marginals)
     bar.update()
     bar.close()
     inliers = np.zeros((sequence.n_frames, sequence.n_segments), dtype=np.int64)
@@ -246,26 +252,27 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         inliers[:, t.camera] = t.inliers_per_frame(sequence.n_frames)
     report = BatchReport(stage + 1, iterations, sum(t.outlier_rows() for t in terms),
                          sum(len(c.obs) for t in terms for c in t.chunks))
-    segments = None if cal is None else _segments(robot, cal)
-    return ProjectionSolution(thetas, blocks, inliers, report, segments, cal_sigmas)
+    return ProjectionSolution(thetas, blocks, inliers, report, cal, cal_std)
 
 
 def _uncertainty(graph: gtsam.NonlinearFactorGraph, x: FloatArray, frames: SequenceOf[int],
-                 bending: Bending, cal: FloatArray | None, marginals: bool
-                 ) -> tuple[FloatArray, FloatArray | None]:
+                 bending: Bending, cal: ModelCalibration | None, marginals: bool
+                 ) -> tuple[FloatArray, ModelCalibration | None]:
     """:func:`marginal_blocks` at the solution, or NaN without ``marginals``."""
     if marginals:
         return marginal_blocks(graph, x, frames, bending.width, calibration=cal)
     w = bending.width
     return (np.full((len(x), bending.n_segments, w, w), np.nan),
-            None if cal is None else np.full(cal.shape, np.nan))
+            None if cal is None else cal.sigmas_from(np.full(cal.size, np.nan)))
 
 
 def _graph(sequence: Sequence, terms: list[CameraTerms], theta0: FloatArray | None,
            options: GraphOptions, calibration_sigmas: tuple[float, float] | None,
-           bending: Bending) -> gtsam.NonlinearFactorGraph:
+           bending: Bending, mount_sigmas: tuple[float, float] | None = None
+           ) -> gtsam.NonlinearFactorGraph:
     """The projection batch's graph: priors, calibration priors (when ``calibration_sigmas``
-    are given), then every camera's projection factors."""
+    are given), mount priors (when ``mount_sigmas`` are), then every camera's projection
+    factors."""
     graph = gtsam.NonlinearFactorGraph()
     frames = range(sequence.n_frames)
     for factor in prior_factors(frames, sequence.timestamps, theta0, bending, options):
@@ -273,11 +280,10 @@ def _graph(sequence: Sequence, terms: list[CameraTerms], theta0: FloatArray | No
     if calibration_sigmas is not None:
         for factor in calibration_factors(sequence.robot, calibration_sigmas):
             graph.add(factor)
+    if mount_sigmas is not None:
+        for factor in mount_factors(sequence.robot, [t.camera for t in terms], mount_sigmas):
+            graph.add(factor)
     for t in terms:
         for factor in t.factors():
             graph.add(factor)
     return graph
-
-
-def _segments(robot: Robot, cal: FloatArray) -> tuple[Segment, ...]:
-    return tuple(calibrated(s, k, d) for s, (k, d) in zip(robot.segments, cal, strict=True))

@@ -32,6 +32,7 @@ from apcc_graph.factors.projection import (
     calibration_key,
     chunk_tracks,
     frame_key,
+    mount_key,
 )
 from apcc_graph.factors.track_points import cut_tracks
 from apcc_graph.model.arrays import FloatArray
@@ -41,8 +42,8 @@ from apcc_graph.model.segment import Segment
 from apcc_graph.model.sequence import Sequence as RobotSequence
 
 __all__ = ["CameraTerms", "calibration_factors", "calibration_from", "camera_observations",
-           "frame_key", "limit_factor", "observed_cameras", "prior_factors", "thetas_from",
-           "values_from"]
+           "frame_key", "limit_factor", "mount_factors", "observed_cameras", "prior_factors",
+           "thetas_from", "values_from"]
 
 
 def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
@@ -102,13 +103,16 @@ class CameraTerms:
         frames_per_chunk: see :func:`apcc_graph.factors.projection.chunk_tracks`.
         calibrate: the factors also depend on the segments' ``(k, delta_max)`` variables
             (:func:`apcc_graph.factors.projection.calibration_key`).
+        mount: the factors also depend on the camera's mounting
+            (:func:`apcc_graph.factors.projection.mount_key`).
     """
 
     def __init__(self, obs: TrackObservations, chain: CameraChain, n_segments: int,
-                 frames_per_chunk: int, calibrate: bool = False) -> None:
+                 frames_per_chunk: int, calibrate: bool = False, mount: bool = False) -> None:
         self.camera = obs.camera
         self.chain = chain
-        self.chunks = [ProjectionFactor(obs.select(c), chain, n_segments, calibrate=calibrate)
+        self.chunks = [ProjectionFactor(obs.select(c), chain, n_segments, calibrate=calibrate,
+                                        mount=mount)
                        for c in chunk_tracks(obs, frames_per_chunk)]
         self.norms = [np.zeros(len(c.obs)) for c in self.chunks]
 
@@ -117,12 +121,16 @@ class CameraTerms:
         return [c.factor() for c in self.chunks]
 
     def measure(self, thetas: FloatArray, robust: bool = False,
-                segments: Sequence[Segment] | None = None) -> None:
+                segments: Sequence[Segment] | None = None,
+                tip_T_cam: FloatArray | None = None) -> None:
         """Residual norms of every observation at ``thetas`` (``(F, S)``, all frames); with
         ``robust``, each track's point is found afresh, robustly (the first decisions).
-        ``segments`` replaces the robot's segment models (self-calibration)."""
-        chain = (None if segments is None
+        ``segments`` replaces the robot's segment models and ``tip_T_cam`` the camera's
+        mounting (self-calibration)."""
+        chain = (self.chain if segments is None
                  else self.chain.with_segments(segments[:len(self.chain.segments)]))
+        if tip_T_cam is not None:
+            chain = chain.with_mount(tip_T_cam)
         for i, c in enumerate(self.chunks):
             self.norms[i] = c.residual_norms(thetas[c.first:c.last + 1], robust=robust,
                                              chain=chain)
@@ -215,6 +223,22 @@ def calibration_factors(robot: Robot, sigmas: tuple[float, float]
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
     return [gtsam.PriorFactorVector(calibration_key(j), np.array([s.k, s.delta_max]), noise)
             for j, s in enumerate(robot.segments)]
+
+
+def mount_factors(robot: Robot, cameras: Iterable[int], sigmas: tuple[float, float]
+                  ) -> list[gtsam.NonlinearFactor]:
+    """Mount-calibration priors: each of ``cameras``' mounting
+    (:func:`~apcc_graph.factors.projection.mount_key`, a ``Pose3``) around the robot's
+    ``tip_T_cam``, with standard deviations ``sigmas = (rotation in radians, translation in
+    metres)`` on each axis of the camera frame."""
+    rot, pos = (float(v) for v in sigmas)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([rot] * 3 + [pos] * 3))
+    out: list[gtsam.NonlinearFactor] = []
+    for c in cameras:
+        camera = robot.cameras[c]
+        assert camera is not None
+        out.append(gtsam.PriorFactorPose3(mount_key(c), gtsam.Pose3(camera.tip_T_cam), noise))
+    return out
 
 
 def calibration_from(values: gtsam.Values, robot: Robot) -> tuple[Segment, ...]:

@@ -165,7 +165,10 @@ def _run(sequence: Sequence, method: str, theta0: ArrayLike, psi0: ArrayLike | N
                               marginals=settings.marginals, progress=progress,
                               init=settings.init, robustness=robustness,
                               calibrate=settings.calibrate,
-                              calibration_sigmas=tuple(settings.calibration_sigmas),
+                              calibration_sigmas=(None if settings.calibration_sigmas is None
+                                                  else tuple(settings.calibration_sigmas)),
+                              mount_sigmas=(None if settings.mount_sigmas is None
+                                            else tuple(settings.mount_sigmas)),
                               psi0=psi0, spatial=spatial)
     from apcc_graph.estimation.smoother_runs import smoother_estimate
 

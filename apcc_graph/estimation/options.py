@@ -16,6 +16,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
+
 
 @dataclass(frozen=True)
 class GraphOptions:
@@ -135,14 +137,20 @@ class BatchOptions:
         marginals: compute marginal standard deviations (otherwise NaN).
         calibrate: self-calibration: estimate each segment's k and delta_max jointly with the
             bends, with priors of ``calibration_sigmas`` around the robot's values.
-        calibration_sigmas: those priors' standard deviations (k, delta_max in radians).
+        calibration_sigmas: those priors' standard deviations (k, delta_max in radians);
+            ``None`` holds the segment models (with ``mount_sigmas``: the mounts alone).
+        mount_sigmas: with ``calibrate``, each observed camera's mounting ``tip_T_cam`` is
+            estimated too, with a prior of these standard deviations (rotation in radians,
+            translation in metres, on each of the camera's axes) around the robot's;
+            ``None`` holds the mounts.
     """
 
     init: str = "chain"
     max_iterations: int = 30
     marginals: bool = True
     calibrate: bool = False
-    calibration_sigmas: Sequence[float] = field(default=(0.05, math.radians(5.0)))
+    calibration_sigmas: Sequence[float] | None = field(default=(0.05, math.radians(5.0)))
+    mount_sigmas: Sequence[float] | None = field(default=MOUNT_SIGMAS)
 
     def __post_init__(self) -> None:
         if self.init not in INITS:
@@ -150,8 +158,16 @@ class BatchOptions:
         if self.max_iterations < 1:
             raise ValueError(f"BatchOptions.max_iterations = {self.max_iterations!r}: expected "
                              "at least 1")
-        sigmas = tuple(float(v) for v in self.calibration_sigmas)
-        if len(sigmas) != 2 or not all(math.isfinite(v) and v > 0.0 for v in sigmas):
-            raise ValueError(f"BatchOptions.calibration_sigmas = {self.calibration_sigmas!r}: "
-                             "expected two finite values > 0 (k, delta_max in radians)")
-        object.__setattr__(self, "calibration_sigmas", sigmas)
+        for name, units in (("calibration_sigmas", "k, delta_max in radians"),
+                            ("mount_sigmas", "rotation in radians, translation in metres")):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            sigmas = tuple(float(v) for v in value)
+            if len(sigmas) != 2 or not all(math.isfinite(v) and v > 0.0 for v in sigmas):
+                raise ValueError(f"BatchOptions.{name} = {value!r}: expected two finite "
+                                 f"values > 0 ({units}) or None")
+            object.__setattr__(self, name, sigmas)
+        if self.calibrate and self.calibration_sigmas is None and self.mount_sigmas is None:
+            raise ValueError("BatchOptions.calibrate with calibration_sigmas = None and "
+                             "mount_sigmas = None calibrates nothing: give either")

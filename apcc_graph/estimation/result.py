@@ -51,6 +51,10 @@ class Estimate:
         calibration_sigmas: with self-calibration, ``(S, 2)`` marginal standard deviations
             of each segment's k and delta_max (radians); ``robot`` then holds the calibrated
             segments. ``None`` otherwise.
+        mount_sigmas: with mount calibration, ``(S, 6)`` marginal standard deviations of each
+            segment's camera mounting (rotations about the camera's x, y, z in radians, then
+            translations along them in metres; NaN where a segment's mount was not
+            estimated); ``robot`` then holds the calibrated mounts. ``None`` otherwise.
         start: when no starting configuration was given, where the estimator found the
             robot to start (:class:`StartReport`); ``None`` otherwise.
         psis: for a robot estimated as spatial, ``(F, S)`` bending-plane angles in
@@ -70,6 +74,7 @@ class Estimate:
     inliers: NDArray[np.int64]
     world_T_base: FloatArray | None = field(default=None, repr=False)
     calibration_sigmas: FloatArray | None = field(default=None, repr=False)
+    mount_sigmas: FloatArray | None = field(default=None, repr=False)
     start: StartReport | None = field(default=None, repr=False)
     psis: FloatArray | None = field(default=None, repr=False)
     psi_sigmas: FloatArray | None = field(default=None, repr=False)

@@ -20,6 +20,7 @@ a sequence whose tracks are short against it).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,12 +49,17 @@ class SequenceBound:
             delta_max (radians); ``None`` when the models were known.
         components: for a spatial robot, ``(F, 2 S)`` the bound of each bending vector's ``u``
             and ``v`` (radians), ``sigmas`` being that of its error norm; ``None`` otherwise.
+        mounts: with unknown camera mounts, ``(S, 6)`` the bound of each segment's camera
+            mounting in gtsam's ``Pose3`` tangent (rotations about the camera's axes in
+            radians, then translations along them in metres; NaN for a segment without a
+            camera); ``None`` when the mounts were known.
     """
 
     sigmas: FloatArray
     theta0_sigma: float | None
     calibration: FloatArray | None = None
     components: FloatArray | None = None
+    mounts: FloatArray | None = None
 
     def rms(self, frames: slice | None = None) -> FloatArray:
         """``(S,)`` RMS of the per-angle bound over ``frames`` (default all), radians: the
@@ -70,7 +76,8 @@ def fisher_information(simulation: Simulation, noise_px: float,
                        max_track_frames: int | None = None,
                        last_frame: int | None = None,
                        calibration_sigmas: tuple[float, float] | None = None,
-                       spatial: bool = False) -> FloatArray:
+                       spatial: bool = False,
+                       mount_sigmas: tuple[float, float] | None = None) -> FloatArray:
     """The ``(F S, F S)`` Fisher information of all angles, index ``f * S + j``.
 
     With ``spatial`` the unknowns are every segment's bending vector ``(u, v) = theta (cos psi,
@@ -81,7 +88,10 @@ def fisher_information(simulation: Simulation, noise_px: float,
     With ``calibration_sigmas`` the segments' k and delta_max are unknowns too (the bound of a
     self-calibrating estimator): the matrix is ``(F S + 2 S)`` square, the calibration of
     segment j at ``F S + 2 j`` (k) and ``F S + 2 j + 1`` (delta_max), with priors of
-    ``calibration_sigmas`` (k, radians).
+    ``calibration_sigmas`` (k, radians). With ``mount_sigmas`` (radians, metres) every camera's
+    mounting is unknown too: six more columns per camera with tracks, in camera order, after
+    all others (:func:`apcc_graph.factors.camera_chain.mount_derivatives`), with priors of
+    those standard deviations.
 
     Args:
         simulation: the simulated sequence and its ground truth.
@@ -109,41 +119,61 @@ def fisher_information(simulation: Simulation, noise_px: float,
     bending = Bending.free(robot.segments) if spatial else Bending.fixed(robot.segments)
     P = bending.dim  # parameters per frame
     D0 = n_frames * P
-    info = np.zeros((D0 + (2 * S if calibrate else 0),) * 2)
+    C0 = D0 + (2 * S if calibrate else 0)
+    mounted = sorted(seq.tracks) if mount_sigmas is not None else []
+    info = np.zeros((C0 + 6 * len(mounted),) * 2)
     for cam in seq.tracks:
-        camera = robot.cameras[cam]
-        assert camera is not None
-        tracks = seq.tracks[cam]
-        inlier = ~simulation.outliers[cam]
-        if last_frame is not None:
-            inlier = inlier & (tracks.frames <= last_frame)
-        if not inlier.any():
-            continue
-        ids = cut_tracks(tracks.frames, tracks.track_ids, max_track_frames)
-        xy = camera.normalized(simulation.clean_uv[cam])
-        obs = build_observations(cam, tracks.frames, ids, xy,
-                                 camera.pixel_jacobian(xy) / noise_px, inlier)
-        landmark = np.zeros(obs.n_tracks, dtype=np.int64)
-        order = np.lexsort((tracks.frames[inlier], ids[inlier]))
-        landmark[obs.tracks] = simulation.landmarks[cam][inlier][order]
-        chain = CameraChain(bending.head(cam + 1), camera.tip_T_cam, seq.world_T_base)
-        n = chain.n_parameters
-        for chunk in chunk_tracks(obs):
-            part = obs.select(chunk)
-            first, last = int(part.frames.min()), int(part.frames.max())
-            out = reduced_system(part, chain, truth[first:last + 1], first,
-                                 np.ones(len(part)), simulation.points_world[landmark[chunk]],
-                                 refine_points=False, calibration=calibrate)
-            index = ((np.arange(first, last + 1) * P)[:, None] + np.arange(n)).ravel()
-            if calibrate:
-                index = np.concatenate([index, D0 + np.arange(2 * (cam + 1))])
-            info[np.ix_(index, index)] += out.H
-    if theta0_sigma is not None:
-        info[np.arange(P), np.arange(P)] += 1.0 / theta0_sigma**2
+        extra = D0 + np.arange(2 * (cam + 1)) if calibrate else np.zeros(0, dtype=int)
+        if mounted:
+            extra = np.concatenate([extra, C0 + 6 * mounted.index(cam) + np.arange(6)])
+        for index, H in _camera_blocks(simulation, cam, bending, truth, noise_px,
+                                       max_track_frames, last_frame, calibrate, bool(mounted)):
+            index = np.concatenate([index, extra])
+            info[np.ix_(index, index)] += H
+    sigmas = [(np.arange(P), np.full(P, np.inf if theta0_sigma is None else theta0_sigma))]
     if calibration_sigmas is not None:
-        prior = np.tile(1.0 / np.asarray(calibration_sigmas, dtype=float) ** 2, S)
-        info[D0 + np.arange(2 * S), D0 + np.arange(2 * S)] += prior
+        sigmas.append((D0 + np.arange(2 * S), np.tile(calibration_sigmas, S)))
+    if mount_sigmas is not None:
+        rot, pos = (float(v) for v in mount_sigmas)
+        sigmas.append((C0 + np.arange(6 * len(mounted)),
+                       np.tile([rot] * 3 + [pos] * 3, len(mounted))))
+    for diag, sigma in sigmas:  # the priors
+        info[diag, diag] += 1.0 / np.asarray(sigma, dtype=float) ** 2
     return info
+
+
+def _camera_blocks(simulation: Simulation, cam: int, bending: Bending, truth: FloatArray,
+                   noise_px: float, max_track_frames: int | None, last_frame: int | None,
+                   calibrate: bool, mount: bool) -> Iterator[tuple[NDArray[np.int64],
+                                                                    FloatArray]]:
+    """Camera ``cam``'s information per chunk of tracks at the truth: the frame columns it
+    touches (``f * P + i``) and its reduced system's ``H`` (those columns, then the chain's
+    calibration and mount columns)."""
+    seq = simulation.sequence
+    camera = seq.robot.cameras[cam]
+    assert camera is not None
+    tracks = seq.tracks[cam]
+    inlier = ~simulation.outliers[cam]
+    if last_frame is not None:
+        inlier = inlier & (tracks.frames <= last_frame)
+    if not inlier.any():
+        return
+    ids = cut_tracks(tracks.frames, tracks.track_ids, max_track_frames)
+    xy = camera.normalized(simulation.clean_uv[cam])
+    obs = build_observations(cam, tracks.frames, ids, xy,
+                             camera.pixel_jacobian(xy) / noise_px, inlier)
+    landmark = np.zeros(obs.n_tracks, dtype=np.int64)
+    order = np.lexsort((tracks.frames[inlier], ids[inlier]))
+    landmark[obs.tracks] = simulation.landmarks[cam][inlier][order]
+    chain = CameraChain(bending.head(cam + 1), camera.tip_T_cam, seq.world_T_base)
+    n, P = chain.n_parameters, bending.dim
+    for chunk in chunk_tracks(obs):
+        part = obs.select(chunk)
+        first, last = int(part.frames.min()), int(part.frames.max())
+        out = reduced_system(part, chain, truth[first:last + 1], first, np.ones(len(part)),
+                             simulation.points_world[landmark[chunk]], refine_points=False,
+                             calibration=calibrate, mount=mount)
+        yield ((np.arange(first, last + 1) * P)[:, None] + np.arange(n)).ravel(), out.H
 
 
 def true_parameters(simulation: Simulation, spatial: bool = False) -> FloatArray:
@@ -162,11 +192,13 @@ def sequence_bound(simulation: Simulation, noise_px: float,
                    theta0_sigma: float | None = math.radians(0.1),
                    max_track_frames: int | None = None,
                    calibration_sigmas: tuple[float, float] | None = None,
-                   spatial: bool = False) -> SequenceBound:
+                   spatial: bool = False,
+                   mount_sigmas: tuple[float, float] | None = None) -> SequenceBound:
     """The per-frame, per-angle Cramer-Rao bound of a simulation (radians).
 
     Args: as :func:`fisher_information`; with ``calibration_sigmas`` the segment models are
-        unknown too, and the bound of their k and delta_max is returned as well.
+        unknown too, and the bound of their k and delta_max is returned as well; with
+        ``mount_sigmas`` the camera mounts, and the bound of the mounts.
 
     Returns:
         The bound; angles the data leave undetermined (a frame no camera saw, no start prior
@@ -175,17 +207,25 @@ def sequence_bound(simulation: Simulation, noise_px: float,
         ``components`` holds ``(sigma_u, sigma_v)`` per segment, ``(F, 2 S)``.
     """
     info = fisher_information(simulation, noise_px, theta0_sigma, max_track_frames,
-                              calibration_sigmas=calibration_sigmas, spatial=spatial)
-    n_frames, S = simulation.sequence.n_frames, simulation.sequence.n_segments
+                              calibration_sigmas=calibration_sigmas, spatial=spatial,
+                              mount_sigmas=mount_sigmas)
+    seq = simulation.sequence
+    n_frames, S = seq.n_frames, seq.n_segments
     sigmas = _bound_sigmas(info)
     D0 = n_frames * S * (2 if spatial else 1)
-    calibration = None if calibration_sigmas is None else sigmas[D0:].reshape(S, 2)
+    C0 = D0 + (0 if calibration_sigmas is None else 2 * S)
+    calibration = None if calibration_sigmas is None else sigmas[D0:C0].reshape(S, 2)
+    mounts = None
+    if mount_sigmas is not None:
+        mounts = np.full((S, 6), np.nan)
+        mounts[sorted(seq.tracks)] = sigmas[C0:].reshape(-1, 6)
     if spatial:
         components = sigmas[:D0].reshape(n_frames, 2 * S)
         pairs = components.reshape(n_frames, S, 2)
         return SequenceBound(np.sqrt(np.sum(pairs**2, axis=-1)), theta0_sigma, calibration,
-                             components)
-    return SequenceBound(sigmas[:D0].reshape(n_frames, S), theta0_sigma, calibration)
+                             components, mounts)
+    return SequenceBound(sigmas[:D0].reshape(n_frames, S), theta0_sigma, calibration,
+                         mounts=mounts)
 
 
 def _bound_sigmas(info: FloatArray) -> FloatArray:
