@@ -3,7 +3,9 @@
 Conventions: the state is one vector per frame in the robot's parameterisation
 (:class:`~apcc_graph.model.parameterisation.Bending`: an angle per segment in fixed bending
 planes, or a bending vector per segment), radians; its tangent space is the identity, so
-GTSAM's ``x + dx`` is plain addition. The maths (residuals with analytic Jacobians) is pure
+GTSAM's ``x + dx`` is plain addition. Self-calibration adds a ``Vector2`` ``(k, delta_max)``
+per segment and a ``Pose3`` mounting per camera, whose tangent is gtsam's (``T . Exp(xi)``,
+``xi = (omega, v)`` in the camera frame). The maths (residuals with analytic Jacobians) is pure
 numpy, apart from the thin code that hands it to gtsam; docs/estimation.md derives it.
 
 May import: :mod:`apcc_graph.model` and :mod:`apcc_graph.frontend`, never the estimators. The
