@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from apcc_graph.factors import chain_jit
+from apcc_graph.factors.engine import resolve
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.segment import Segment
@@ -35,6 +37,7 @@ def camera_poses(
     world_T_base: ArrayLike | None = None,
     derivatives: bool = True,
     calibration: bool = False,
+    engine: str | None = None,
 ) -> tuple[FloatArray, FloatArray | None] | tuple[FloatArray, FloatArray, FloatArray]:
     """``world_T_cam`` of a camera on the last of ``bending``'s segments, for every frame.
 
@@ -47,6 +50,10 @@ def camera_poses(
         derivatives: also return the derivatives.
         calibration: also return the derivatives in each segment's ``k`` and ``delta_max``
             (implies ``derivatives``).
+        engine: ``"numba"`` runs segments in fixed planes without ``calibration`` through the
+            compiled kernel (:mod:`apcc_graph.factors.chain_jit`; the same poses to rounding),
+            anything else through the numpy code below (``"numpy"``, the reference); ``None``:
+            the default (:mod:`apcc_graph.factors.engine`).
 
     Returns:
         ``poses`` ``(F, 4, 4)`` and, with ``derivatives``, ``d poses`` ``(F, P, 4, 4)``:
@@ -60,6 +67,15 @@ def camera_poses(
         raise ValueError(f"x has {P} columns for {n} segments: expected {bending.dim} "
                          f"({bending.width} per segment)")
     M = np.asarray(tip_T_cam, dtype=float)
+    if resolve(engine) == "numba" and not (calibration or bending.is_free):
+        base = (np.eye(4)[None] if world_T_base is None
+                else np.asarray(world_T_base, dtype=float).reshape(-1, 4, 4))
+        if len(base) not in (1, n_frames):
+            raise ValueError(f"world_T_base has {len(base)} poses for {n_frames} frames")
+        poses, d_poses = chain_jit.fixed_plane_poses(
+            x, chain_jit.segment_table(bending.segments), bending.planes,
+            np.ascontiguousarray(M), np.ascontiguousarray(base), derivatives)
+        return poses, d_poses if derivatives else None
     T = [bending.transform(x, j) for j in range(n)]
     prefix = [np.broadcast_to(np.eye(4) if world_T_base is None
                               else np.asarray(world_T_base, dtype=float), (n_frames, 4, 4))]
@@ -129,14 +145,14 @@ class CameraChain:
         return self.bending.dim
 
     def poses(self, x: FloatArray, first: int, derivatives: bool,
-              calibration: bool = False) -> tuple:
+              calibration: bool = False, engine: str | None = None) -> tuple:
         """Poses (and derivatives) of frames ``first .. first + len(x) - 1`` from their
         vectors ``x`` ``(F', P)`` (columns beyond the camera's segments ignored); see
         :func:`camera_poses`."""
         rows = slice(first - self.frame0, first - self.frame0 + len(x))
         base = None if self.world_T_base is None else self.world_T_base[rows]
         return camera_poses(x[:, :self.bending.dim], self.bending, self.tip_T_cam, base,
-                            derivatives, calibration)
+                            derivatives, calibration, engine)
 
     def with_mount(self, tip_T_cam: ArrayLike) -> CameraChain:
         """The same chain with another camera mounting (mount calibration)."""

@@ -30,7 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.factors import reduced_jit
 from apcc_graph.factors.camera_chain import CameraChain, mount_derivatives
+from apcc_graph.factors.engine import resolve
 from apcc_graph.factors.track_points import TrackObservations, project_rows, segment_sum
 from apcc_graph.factors.triangulation import robust_triangulate, triangulate_rows
 from apcc_graph.model.arrays import FloatArray
@@ -58,13 +60,14 @@ class ReducedSystem:
 
 
 def _row_poses(chain: CameraChain, thetas: FloatArray, first: int, frames: NDArray[np.int64],
-               derivatives: bool, calibration: bool = False, mount: bool = False
+               derivatives: bool, calibration: bool = False, mount: bool = False,
+               engine: str | None = None
                ) -> tuple[FloatArray, FloatArray, FloatArray | None, FloatArray | None]:
     """Row-last camera orientation ``(3, 3, N)``, position ``(3, N)``, pose derivatives
     ``(4, 4, n, N)`` of each row's frame and, with ``calibration`` or ``mount``, the
     derivatives in the model parameters: ``(k_0, delta_0, k_1, ...)`` of the chain's ``m``
     segments, then the mounting's six (:func:`mount_derivatives`), ``(4, 4, C, N)``."""
-    out = chain.poses(thetas, first, derivatives, calibration)
+    out = chain.poses(thetas, first, derivatives, calibration, engine)
     poses, d_poses = out[0], out[1]
     lf = frames - first
     P = np.moveaxis(poses, 0, -1)[:, :, lf]
@@ -114,7 +117,7 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
                    weights: FloatArray, points: FloatArray | None = None,
                    jacobians: bool = True, refine_points: bool = True,
                    calibration: bool = False, point_iterations: int = 10,
-                   mount: bool = False) -> ReducedSystem:
+                   mount: bool = False, engine: str | None = None) -> ReducedSystem:
     """The chunk's reduced Gauss-Newton system (see the module docstring).
 
     Args:
@@ -138,13 +141,24 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
             eliminated, whose angle step is as good, but whose ``cost`` is not minimised over
             the points (an estimator that compares costs, such as Levenberg-Marquardt, needs
             the default).
+        engine: ``"numba"``, the compiled kernels (:mod:`apcc_graph.factors.reduced_jit`), or
+            ``"numpy"``, the reference; both give the same system to rounding. ``None``: the
+            default (:mod:`apcc_graph.factors.engine`).
     """
+    engine = resolve(engine)
     Rb, ob, dP, dC = _row_poses(chain, thetas, first, obs.frames, jacobians,
-                                jacobians and calibration, jacobians and mount)
+                                jacobians and calibration, jacobians and mount, engine)
     pts = None if points is None else np.ascontiguousarray(points.T)
     if refine_points or pts is None:
         pts = triangulate_rows(obs, Rb, ob, weights, pts,
-                               10 if pts is None else point_iterations)
+                               10 if pts is None else point_iterations, engine=engine)
+    if engine == "numba" and jacobians:
+        assert dP is not None
+        dX = np.ascontiguousarray(dP if dC is None else np.concatenate([dP, dC], axis=2))
+        H, g, cost, norms = reduced_jit.reduced(
+            obs.xy_t, obs.whiten_t, obs.tracks, obs.starts, obs.frames - first, Rb, ob, dX,
+            np.ascontiguousarray(weights, dtype=float), pts, len(thetas), dP.shape[2])
+        return ReducedSystem(H, g, cost, pts.T.copy(), norms)
     proj = project_rows(obs, Rb, ob, pts[:, obs.tracks])
     norms = proj.norms
     sw = np.sqrt(np.where(proj.valid, weights, 0.0))

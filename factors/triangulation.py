@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from apcc_graph.factors import triangulation_jit
+from apcc_graph.factors.engine import resolve
 from apcc_graph.factors.track_points import (
     MIN_DEPTH,
     TrackObservations,
@@ -151,9 +153,18 @@ def triangulate(
 
 def triangulate_rows(obs: TrackObservations, Rb: FloatArray, ob: FloatArray, weights: FloatArray,
                      points: FloatArray | None, iterations: int = 10,
-                     tolerance: float = 1e-6) -> FloatArray:
+                     tolerance: float = 1e-6, engine: str | None = None) -> FloatArray:
     """:func:`triangulate`, row-last: ``Rb`` ``(3, 3, N)``, ``ob`` ``(3, N)``, points
-    ``(3, T)`` in and out."""
+    ``(3, T)`` in and out. ``engine``: ``"numba"``, the compiled kernels
+    (:mod:`apcc_graph.factors.triangulation_jit`), or ``"numpy"``, the reference below; both give
+    the same points to rounding; ``None``: the default (:mod:`apcc_graph.factors.engine`)."""
+    if resolve(engine) == "numba":
+        args = (obs.xy_t, obs.starts, np.ascontiguousarray(Rb), np.ascontiguousarray(ob),
+                np.ascontiguousarray(weights, dtype=float))
+        start = (triangulation_jit.initial_points(*args) if points is None
+                 else np.ascontiguousarray(points, dtype=float))
+        return triangulation_jit.triangulate(obs.xy_t, obs.whiten_t, *args[1:], start,
+                                             iterations, tolerance)
     if points is None:
         points = _initial_points(obs, Rb, ob, weights)
     problem = _InverseDepth(obs, Rb, ob, weights)

@@ -19,7 +19,8 @@ exactly there). Every figure is measured here, in the same run:
 - drift over ``long_frames`` frames: the smoother's RMS over frames 100-400 and the
   last 300;
 - speed: the smoother's ``update`` per frame (median, 95th percentile, 3 cameras,
-  lag 1 s) and the batch's seconds;
+  lag 1 s) and the batch's seconds; and both on one ``frames``-frame recording with the
+  compiled kernels and with their numpy reference, the peer (:mod:`apcc_graph.bench.engines`);
 - memory: resident set size after 1,000 and after ``memory_frames`` frames of a stream whose
   finished frames are taken out (``pop_final``).
 """
@@ -37,6 +38,7 @@ import numpy as np
 from tqdm import tqdm
 
 from apcc_graph.bench import ROBOT_FILE
+from apcc_graph.bench.engines import EngineTimes, engine_times, format_engine_times
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
@@ -105,6 +107,7 @@ class SmootherBenchmark:
     memory_frames: int
     rss_small: float  # bytes, after 1,000 frames
     rss_large: float  # bytes, after memory_frames frames
+    engines: tuple[EngineTimes, ...] = ()  # compiled and numpy reference, on one recording
 
 
 def resident_set_size() -> float:
@@ -239,14 +242,17 @@ def run_smoother_benchmark(
     robot = load_robot(ROBOT_FILE)
     runs, tracks = _accuracy(robot, frames, seeds, outliers, methods, progress)
     early = late = median = p95 = float("nan")
+    engines: list[EngineTimes] = []
     if long_frames:
         early, late, median, p95 = _drift(robot, long_frames, seeds[0] + 100, progress)
+        peer = room_simulation(robot, frames, 0.1, seeds[0] + 100).sequence
+        engines = engine_times(peer, QUICK, progress)
     rss_small = rss_large = float("nan")
     if memory_frames:
         rss_small, rss_large = _memory(robot, memory_frames, seeds[0] + 200, progress)
     return SmootherBenchmark(frames, tuple(seeds), float(np.mean(tracks)), tuple(runs),
                              long_frames, early, late, median, p95, memory_frames, rss_small,
-                             rss_large)
+                             rss_large, tuple(engines))
 
 
 def _cells(values: np.ndarray, fmt: str = "7.3f") -> str:
@@ -331,6 +337,8 @@ def _speed_and_memory(r: SmootherBenchmark) -> list[str]:
     if batch:
         out.append(f"  batch of {r.frames} frames (from the chain): median "
                    f"{np.median(batch):.1f} s")
+    if r.engines:
+        out += format_engine_times(list(r.engines), r.frames)
     if r.memory_frames:
         mb = 1024.0**2
         out += ["", "memory: resident set size of a stream (finished frames taken out)",

@@ -16,11 +16,14 @@ parameterisation's: angles in fixed planes, or bending vectors, smooth through s
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.factors import reduced_jit
+from apcc_graph.factors.engine import resolve
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
@@ -87,8 +90,12 @@ def frame_poses(x: FloatArray, bending: Bending, world_T_base: FloatArray | None
 
 def _normal_equations(thetas: FloatArray, robot: Robot, bending: Bending,
                       base: FloatArray | None, rows: list[FrameRows], scale: float | None,
-                      threshold: float
+                      threshold: float, engine: str | None = None
                       ) -> tuple[FloatArray, FloatArray, float, list[NDArray[np.bool_]]]:
+    """The frame's Gauss-Newton system from every camera's rows of known points (Cauchy
+    weights of ``scale``, or 0/1 at ``threshold`` when ``None``), its cost and the rows'
+    inlier flags. ``engine``: ``"numba"`` (:func:`~apcc_graph.factors.reduced_jit.
+    known_points_system`) or ``"numpy"``, the reference below."""
     P = len(thetas)
     tips, derivs = frame_poses(thetas, bending, base)
     H, g, cost = np.zeros((P, P)), np.zeros(P), 0.0
@@ -99,6 +106,17 @@ def _normal_equations(thetas: FloatArray, robot: Robot, bending: Bending,
         assert camera is not None
         pose = tips[c] @ camera.tip_T_cam
         dpose = derivs[c] @ camera.tip_T_cam
+        k = len(dpose)
+        if resolve(engine) == "numba":
+            Hc, gc, cc, flags = reduced_jit.known_points_system(
+                np.ascontiguousarray(r.points, dtype=float), np.ascontiguousarray(r.xy),
+                np.ascontiguousarray(r.whiten), pose, dpose,
+                math.nan if scale is None else float(scale), float(threshold))
+            H[:k, :k] += Hc
+            g[:k] += gc
+            cost += cc
+            inliers.append(flags > 0.0)
+            continue
         R, o = pose[:3, :3], pose[:3, 3]
         d = r.points - o
         q = d @ R
@@ -120,7 +138,6 @@ def _normal_equations(thetas: FloatArray, robot: Robot, bending: Bending,
         J = np.einsum("nab,nbc,njc->naj", r.whiten, dm, dq)  # (n, 2, k): k = len(dpose)
         sw = np.sqrt(w)[:, None, None]
         Jw, rw = J * sw, res * sw[:, :, 0]
-        k = len(dpose)
         H[:k, :k] += np.einsum("naj,nak->jk", Jw, Jw)
         g[:k] += np.einsum("naj,na->j", Jw, rw)
         cost += float(np.sum(rw * rw))

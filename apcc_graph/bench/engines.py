@@ -1,0 +1,84 @@
+"""The compiled kernels against their numpy reference, timed in the same run.
+
+``apcc-graph bench smoother`` reports the smoother's update time and the batch's seconds; this
+module gives both their peer: the same estimator on the same recording with the numpy
+reference of the projection model's hot loops (:mod:`apcc_graph.factors.engine`), so the
+speed-up is measured, not remembered. The two runs must give the same angles to well within
+the noise (the kernels are the same steps to rounding); the largest difference is reported.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from apcc_graph.estimation.batch import batch_estimate
+from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.factors.engine import ENGINES, use_engine
+from apcc_graph.model.sequence import Sequence
+
+
+@dataclass(frozen=True)
+class EngineTimes:
+    """One engine's times on the peer recording."""
+
+    engine: str
+    update_median: float  # seconds per smoother update
+    update_p95: float
+    batch_seconds: float
+    smoother_thetas: np.ndarray  # (F, S) final smoother angles (radians)
+    batch_thetas: np.ndarray  # (F, S)
+
+
+def _smoother_times(sequence: Sequence, settings: SmootherOptions, progress: bool,
+                    label: str) -> tuple[np.ndarray, np.ndarray]:
+    assert sequence.thetas is not None
+    smoother = FixedLagSmoother(sequence.robot, lag=1.0, theta0=sequence.thetas[0],
+                                settings=settings)
+    times = np.empty(sequence.n_frames)
+    for f in tqdm(range(sequence.n_frames), desc=label, disable=not progress, leave=False):
+        start = time.perf_counter()
+        smoother.update(sequence.frame(f))
+        times[f] = time.perf_counter() - start
+    return times, np.array([fr.thetas for fr in smoother.finish()])
+
+
+def engine_times(sequence: Sequence, settings: SmootherOptions, progress: bool = False
+                 ) -> list[EngineTimes]:
+    """The smoother's update times and the batch's seconds on ``sequence`` with each engine
+    (compiled first), each started at the true first frame."""
+    assert sequence.thetas is not None
+    out = []
+    for engine in ENGINES:
+        with use_engine(engine):
+            times, smoothed = _smoother_times(sequence, settings, progress,
+                                              f"smoother ({engine})")
+            start = time.perf_counter()
+            batch = batch_estimate(sequence, theta0=sequence.thetas[0], progress=progress)
+            seconds = time.perf_counter() - start
+        out.append(EngineTimes(engine, float(np.median(times)),
+                               float(np.percentile(times, 95)), seconds, smoothed,
+                               batch.thetas))
+    return out
+
+
+def format_engine_times(rows: list[EngineTimes], frames: int) -> list[str]:
+    """The comparison's lines for the benchmark's table."""
+    compiled, reference = rows[0], rows[-1]
+    deg = np.degrees
+    lines = [f"  compiled kernels against the numpy reference, {frames} frames, one recording:",
+             f"  {'engine':<8} {'update median':>14} {'update p95':>11} {'batch':>8}"]
+    for r in rows:
+        lines.append(f"  {r.engine:<8} {r.update_median * 1e3:11.2f} ms {r.update_p95 * 1e3:8.2f}"
+                     f" ms {r.batch_seconds:6.1f} s")
+    lines.append(
+        f"  speed-up: update {reference.update_median / compiled.update_median:.2f}x, batch "
+        f"{reference.batch_seconds / compiled.batch_seconds:.2f}x; largest angle difference "
+        f"smoother {deg(np.max(np.abs(compiled.smoother_thetas - reference.smoother_thetas))):.1e}"
+        f" deg, batch {deg(np.max(np.abs(compiled.batch_thetas - reference.batch_thetas))):.1e}"
+        " deg")
+    return lines
