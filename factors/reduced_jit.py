@@ -1,4 +1,5 @@
-"""The projection factor's hot loops compiled: projections and the reduced system.
+"""The projection factor's hot loops compiled: the reduced system, and the system of one frame
+from known points.
 
 The numpy reference is :mod:`apcc_graph.factors.reduced_system` (docs/estimation.md,
 "Eliminating each track's point"); these kernels run the same steps in the same order, track
@@ -23,27 +24,6 @@ from numba import njit
 from apcc_graph.model.arrays import FloatArray, IntArray
 
 MIN_DEPTH = 0.02  # as apcc_graph.factors.track_points.MIN_DEPTH (a test keeps them equal)
-
-
-@njit(cache=True)
-def project(xy: FloatArray, W: FloatArray, tracks: IntArray, Rb: FloatArray, ob: FloatArray,
-            points: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Whitened residuals ``(2, N)`` of each row's track point and their norms ``(N,)``
-    (``inf`` behind the camera; reference: ``track_points.project_rows``)."""
-    n_rows = tracks.shape[0]
-    r, norms, q = np.empty((2, n_rows)), np.empty(n_rows), np.empty(3)
-    for k in range(n_rows):
-        t = tracks[k]
-        for i in range(3):
-            q[i] = ((points[0, t] - ob[0, k]) * Rb[0, i, k]
-                    + (points[1, t] - ob[1, k]) * Rb[1, i, k]
-                    + (points[2, t] - ob[2, k]) * Rb[2, i, k])
-        iz = 1.0 / max(q[2], MIN_DEPTH)
-        e0, e1 = q[0] * iz - xy[0, k], q[1] * iz - xy[1, k]
-        r[0, k] = W[0, 0, k] * e0 + W[0, 1, k] * e1
-        r[1, k] = W[1, 0, k] * e0 + W[1, 1, k] * e1
-        norms[k] = math.sqrt(r[0, k] ** 2 + r[1, k] ** 2) if q[2] > MIN_DEPTH else np.inf
-    return r, norms
 
 
 @njit(cache=True)
