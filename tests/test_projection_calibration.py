@@ -53,9 +53,12 @@ def test_calibration_pose_derivatives_match_central_differences(seed: int, free:
     if free:
         thetas = bending.vector(thetas, rng.uniform(-math.pi, math.pi, (n_frames, n)))
     poses, d_poses, d_cal = camera_poses(thetas, bending, mount, None, calibration=True)
-    plain, d_plain = camera_poses(thetas, bending, mount, None)
-    np.testing.assert_array_equal(poses, plain)
+    plain, d_plain = camera_poses(thetas, bending, mount, None, engine="numpy")
+    np.testing.assert_array_equal(poses, plain)  # the same numpy code
     np.testing.assert_array_equal(d_poses, d_plain)
+    compiled, d_compiled = camera_poses(thetas, bending, mount, None)  # fixed planes: compiled
+    np.testing.assert_allclose(compiled, plain, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(d_compiled, d_plain, rtol=0, atol=1e-14)
     assert d_cal.shape == (n_frames, n, 2, 4, 4)
     np.testing.assert_array_equal(d_cal[..., 3, :], 0.0)
     h = 1e-6
