@@ -82,3 +82,42 @@ def test_a_lag_of_a_few_frames(sample: Sequence) -> None:
                                    noise_px=0.5, settings=SmootherOptions(lag=0.1))
     assert np.all(np.isfinite(estimate.thetas))
     assert np.degrees(estimate.rms(steady.thetas)).max() < 1.0
+
+
+def dropped(sequence: Sequence, start: int, frames: int) -> Sequence:
+    """``sequence`` without frames ``start .. start + frames - 1``: the recording paused while
+    the robot moved on."""
+    keep = np.r_[0:start, start + frames:sequence.n_frames]
+    index = np.full(sequence.n_frames, -1)
+    index[keep] = np.arange(len(keep))
+    tracks = {}
+    for cam, t in sequence.tracks.items():
+        m = index[t.frames] >= 0
+        tracks[cam] = type(t)(index[t.frames[m]], t.track_ids[m], t.uv[m])
+    base = None if sequence.world_T_base is None else sequence.world_T_base[keep]
+    return Sequence(sequence.robot, sequence.timestamps[keep], tracks, world_T_base=base,
+                    thetas=sequence.thetas[keep], psis=None)
+
+
+def test_a_pause_while_the_robot_moves_is_said_and_reacquired() -> None:
+    """The reliability scene paused for 1.5 s at frame 100 while segment 1 moved 64 deg:
+    no track seen before comes back. Measured (300 frames): the smoother's first 60 frames
+    after the pause were 119 / 133 / 88 deg off (the constant-velocity prediction carried over
+    the gap, then the window from there); re-acquired by the start search over the frames after
+    the pause, 3.0 / 0.38 / 0.07 deg, where the batch is at 0.44 / 0.12 / 0.06. Segment 1 later
+    wanders to 8 deg with a sigma of 0.8, as after a blackout (docs/estimation.md, "What the
+    smoother says when the data go wrong")."""
+    from apcc_graph.bench.reliability import fault_cases
+    from apcc_graph.estimation.blackout import BlackoutWarning
+
+    clean = {c.name: c for c in fault_cases(300, 1)}["none"].simulation.sequence
+    paused = dropped(clean, 100, 45)
+    assert np.degrees(np.abs(paused.thetas[100] - paused.thetas[99])).max() > 30.0
+    with pytest.warns(BlackoutWarning, match=r"frame 100 .* paused for 1\.5\d s"):
+        estimate = apcc_graph.estimate(paused, method="smoother", theta0=paused.thetas[0],
+                                       noise_px=1.0, theta0_sigma=np.radians(0.1))
+    after = slice(100, 160)
+    err = np.degrees(np.sqrt(np.mean((estimate.thetas[after] - paused.thetas[after]) ** 2,
+                                     axis=0)))
+    assert np.all(err < 5.0), err
+    assert (estimate.status[100] == "reacquired").all()

@@ -36,6 +36,7 @@ from apcc_graph.estimation.batch_solve import projection_solve
 from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import Rows
+from apcc_graph.estimation.start_search import find_start
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
@@ -71,6 +72,18 @@ def warn_blackout(frame: int, timestamp: float, sigmas: FloatArray) -> None:
                   BlackoutWarning, stacklevel=4)
 
 
+def warn_pause(frame: int, timestamp: float, gap: float, sigma: float) -> None:
+    """Say that ``frame`` (at ``timestamp`` seconds) came ``gap`` seconds after the previous
+    one, longer than the smoother's lag (``sigma``: the start prior of the re-acquisition,
+    radians)."""
+    warnings.warn(f"frame {frame} ({timestamp:.3f} s): the recording had paused for {gap:.2f} s, "
+                  "longer than the smoother's lag; the robot may have moved anywhere meanwhile. "
+                  "The smoother re-acquires the angles from the tracks after the pause once they "
+                  f"span its lag (from the unknown-start search, else from the last estimate "
+                  f"with a sigma of {math.degrees(sigma):.2g} deg); until then they may be off",
+                  BlackoutWarning, stacklevel=4)
+
+
 @dataclass
 class Reacquisition:
     """The frames after a blackout, kept until one batch re-acquires their angles.
@@ -82,6 +95,8 @@ class Reacquisition:
         bending: the smoother's parameterisation.
         theta0: the smoother's estimate of the first kept frame (its frame vector, radians).
         sigma: the start prior of the batch (radians; at least :data:`MIN_SIGMA`).
+        search: first run the unknown-start search over the kept frames; when it determines
+            their start, its answer and sigma replace ``theta0`` and ``sigma``.
     """
 
     robot: Robot
@@ -90,6 +105,7 @@ class Reacquisition:
     bending: Bending
     theta0: FloatArray
     sigma: float
+    search: bool = True
     slots: list[int] = field(default_factory=list)
     _times: list[float] = field(default_factory=list)
     _frames: list[FrameObservations] = field(default_factory=list)
@@ -105,9 +121,8 @@ class Reacquisition:
         ``t`` (or has left it, after a restart)."""
         return bool(self._times) and self._times[0] < t - lag
 
-    def solve(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """The kept frames' ``(K, dim)`` frame vectors, ``(K, S w w)`` flattened marginal
-        covariance blocks and ``(K, dim)`` standard deviations (radians)."""
+    def sequence(self) -> Sequence:
+        """The kept frames as a recording (their frame ``k`` is the ``k``-th kept)."""
         tracks = {}
         for cam in self.robot.camera_segments:
             rows = [(k, *obs.tracks[cam]) for k, obs in enumerate(self._frames)
@@ -117,10 +132,29 @@ class Reacquisition:
                                      np.concatenate([ids for _, ids, _ in rows]),
                                      np.concatenate([uv for _, _, uv in rows]))
         bases = [obs.world_T_base for obs in self._frames]
-        sequence = Sequence(self.robot, self._times, tracks,
-                            None if any(b is None for b in bases) else np.array(bases))
-        options = replace(self.options, theta0_sigma=max(self.sigma, MIN_SIGMA))
-        start, _, _ = chain_vectors(sequence, self.bending, self.theta0, options.threshold_px)
-        found = projection_solve(sequence, start, self.theta0, options,
+        return Sequence(self.robot, self._times, tracks,
+                        None if any(b is None for b in bases) else np.array(bases))
+
+    def solve(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The kept frames' ``(K, dim)`` frame vectors, ``(K, S w w)`` flattened marginal
+        covariance blocks and ``(K, dim)`` standard deviations (radians)."""
+        sequence = self.sequence()
+        theta0, sigma = self._searched(sequence) if self.search else (self.theta0, self.sigma)
+        options = replace(self.options, theta0_sigma=max(sigma, MIN_SIGMA))
+        start, _, _ = chain_vectors(sequence, self.bending, theta0, options.threshold_px)
+        found = projection_solve(sequence, start, theta0, options,
                                  Robustness(self.inlier_sigmas), bending=self.bending)
         return found.x, found.blocks.reshape(len(found.x), -1), found.sigmas
+
+    def _searched(self, sequence: Sequence) -> tuple[FloatArray, float]:
+        """The kept frames' start and its sigma: the unknown-start search's when it determines
+        them, else ``theta0`` and ``sigma``."""
+        span = float(sequence.timestamps[-1] - sequence.timestamps[0])
+        try:
+            found = find_start(sequence, span + 1.0, self.options, spatial=self.bending.is_free,
+                               robustness=Robustness(self.inlier_sigmas))
+        except (RuntimeError, ValueError, IndexError):
+            return self.theta0, self.sigma
+        if not found.determined:
+            return self.theta0, self.sigma
+        return found.x0.copy(), float(np.nanmax(found.sigma0, initial=MIN_SIGMA))

@@ -2,16 +2,12 @@
 
 Every observation enters the graph once, in a projection factor that eliminates its track's
 point or, for a track that outlives the window, as a landmark observation (``apcc-graph bench
-smoother`` measures it against the Cramer-Rao bounds).
-
-The pieces it drives: the window (:mod:`apcc_graph.estimation.window`); the graph
-(:mod:`apcc_graph.estimation.graph`: the angles of each frame, the start prior, a weak motion
-prior, soft joint limits, the projection factors); the track pieces, committed into one factor
-when their track ends, when their first frame is about to leave the window, or at
-``GraphOptions.max_track_frames`` (:mod:`apcc_graph.estimation.projection_tracks`,
-:mod:`apcc_graph.estimation.live_tracks`); the new frame's initial angles
-(:mod:`apcc_graph.estimation.initial_guess`); the landmarks, tracks that outlive the window
-(:mod:`apcc_graph.estimation.landmarks`); the still frames (:mod:`apcc_graph.estimation.stillness`).
+smoother`` measures it against the Cramer-Rao bounds). It drives the window (``window``), the
+graph (``graph``: angles per frame, start prior, weak motion prior, soft joint limits,
+projection factors), the track pieces, committed when their track ends, when their first frame
+is about to leave the window, or at ``GraphOptions.max_track_frames`` (``projection_tracks``,
+``live_tracks``), the new frame's initial angles (``initial_guess``), the landmarks
+(``landmarks``) and the still frames (``stillness``), all in :mod:`apcc_graph.estimation`.
 
 gtsam's ``IncrementalFixedLagSmoother`` (iSAM2) holds the window, re-linearises the factors
 whose frames move more than ``relinearize_threshold`` and marginalises frames older than ``lag``.
@@ -20,8 +16,10 @@ Failure modes handled: a frame without tracks (the motion prior carries it; with
 prior, a loose prior at the initial guess keeps the system determined, so marginalising such a
 frame is safe); a robot standing still (after a few still frames the next ones are held out of
 the graph: :mod:`apcc_graph.estimation.stillness`); gtsam's indeterminate-system exception
-(caught; the smoother restarts from its last estimate with the start prior at that estimate).
-"""
+(caught; the smoother restarts from its last estimate with the start prior at that estimate);
+tracks that return after a blackout (:mod:`apcc_graph.estimation.blackout`); a start that
+contradicts the first second's images (replaced by the unknown-start search's answer:
+:mod:`apcc_graph.estimation.start_check`)."""
 
 from __future__ import annotations
 
@@ -35,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.estimation.bends import parameterisation, start_vector
-from apcc_graph.estimation.blackout import Reacquisition, tracks_returned, warn_blackout
+from apcc_graph.estimation.blackout import Reacquisition
 from apcc_graph.estimation.frame_priors import frame_priors
 from apcc_graph.estimation.front_end import front_end_guess
 from apcc_graph.estimation.graph import frame_key
@@ -44,13 +42,13 @@ from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
 from apcc_graph.estimation.smoother_options import SmootherOptions, smoother_settings
-from apcc_graph.estimation.start_check import check_start
+from apcc_graph.estimation.smoother_restarts import Restarts
+from apcc_graph.estimation.start_check import FirstFrames
 from apcc_graph.estimation.stillness import StillFrames
 from apcc_graph.estimation.window import (
     SmootherFrame,
     Window,
     check_timestamp,
-    component_sigmas,
     key_stamps,
     new_gtsam_smoother,
     present_frame,
@@ -62,7 +60,7 @@ from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
 
 
-class FixedLagSmoother:
+class FixedLagSmoother(Restarts):
     """Streaming estimator of a robot's segment angles: ``update(frame)`` once per frame.
 
     Args:
@@ -121,6 +119,9 @@ class FixedLagSmoother:
         self._live_indices: list[int] = []
         self._tracked = False  # whether any frame had tracks yet
         self._reacquiring: Reacquisition | None = None
+        self._first: FirstFrames | None = FirstFrames(  # for the start search, if need be
+            Reacquisition(robot, o, self.inlier_sigmas, b, self.theta0, o.theta0_sigma),
+            self.spatial, robustness or Robustness())
         self._still = StillFrames(math.inf if s.still_frames is None else s.still_frames,
                                   s.still_chi2)
 
@@ -176,14 +177,10 @@ class FixedLagSmoother:
         if still.hold(rows, base, f, t, window.inside(f - 1)):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
-        if (self._tracked and window.inside(f - 1)
-                and tracks_returned(rows, self._previous_rows, self._known)):
-            sigmas = component_sigmas(self.bending, self._sigmas(f - 1))
-            warn_blackout(still.count - 1, still.last_time or 0.0, sigmas)
-            self._reacquiring = Reacquisition(
-                self.robot, self.options, self.inlier_sigmas, self.bending,
-                window.thetas[f - 1], float(np.nanmax(sigmas, initial=math.pi / 6)))
+        self._watch_gaps(f, t, rows, still.count - 1, still.last_time or 0.0)
         self._tracked = self._tracked or bool(rows)
+        if self._first is not None:  # frame 0 left at a restart: no verdict on the start
+            self._first = self._first.keep(f, t, observations, f == 0 or window.inside(0))
         if self._reacquiring is not None:
             if self._reacquiring.due(t, window.lag):
                 self._reacquire(self._reacquiring)
@@ -241,7 +238,7 @@ class FixedLagSmoother:
             return self.theta0.copy(), np.full(S, "initial", dtype="<U24"), accepted
         known, masks = self._tracks.known_rows(rows, marks, self._landmarks)
         previous = self._window.latest(f - 1)
-        prediction = predict(previous, self._window.latest(f - 2), bending)
+        prediction = predict(previous, self._older(f), bending)
         counts: dict[int, int] = {}
         for cam, mask in masks:
             counts[cam] = counts.get(cam, 0) + int(mask.sum())
@@ -303,58 +300,16 @@ class FixedLagSmoother:
         """Which of a camera's track ids are landmarks or live tracks."""
         return (self._landmarks.of(cam, ids) >= 0) | (self._tracks.live.piece_ids(cam, ids) >= 0)
 
-    def _reacquire(self, kept: Reacquisition) -> None:
-        """One batch over the frames kept since a blackout; they take its angles and sigmas,
-        and the window restarts at the newest (:mod:`apcc_graph.estimation.blackout`)."""
-        self._reacquiring, window, g = None, self._window, kept.slots[-1]
-        if not window.inside(g):
-            return
-        try:
-            thetas, blocks, sigmas = kept.solve()
-        except (RuntimeError, ValueError, IndexError):
-            return  # the window goes on as it was
-        status = np.full(self.robot.n_segments, "reacquired", dtype="<U24")
-        for h, th, cov in zip(kept.slots, thetas, blocks, strict=True):
-            if window.inside(h):
-                window.thetas[h], window.status[h] = th, status
-            elif h in window.final:  # left at a restart, not taken yet
-                window.final[h] = SmootherFrame(h, window.final[h].timestamp, th, cov, status)
-        sigma = np.where(np.isfinite(sigmas[-1]), np.maximum(sigmas[-1], 1e-6), math.pi / 6)
-        self._restart(g, window.stamps[g], thetas[-1], gtsam.noiseModel.Diagonal.Sigmas(sigma),
-                      None, dict(zip(kept.slots, blocks, strict=True)))
-
-    def _restart(self, f: int, t: float, thetas: FloatArray,
-                 prior: gtsam.noiseModel.Base | None = None, status: str | None = "recovered",
-                 sigmas: Mapping[int, FloatArray] | None = None) -> None:
-        """A new smoother holding only frame f, at ``thetas``, with ``prior`` (default: a sigma
-        of ``options.theta0_sigma``, at least 1 deg); the other frames leave with their last
-        estimates (and ``sigmas``). After a gtsam failure, or after a re-acquisition."""
-        self._window.renew()
-        graph = gtsam.NonlinearFactorGraph()
-        S = self.robot.n_segments
-        graph.add(gtsam.PriorFactorVector(frame_key(f), thetas, prior or gtsam.noiseModel.
-                                          Isotropic.Sigma(len(thetas),
-                                                          max(self.options.theta0_sigma,
-                                                              math.radians(1.0)))))
-        values = gtsam.Values()
-        values.insert(frame_key(f), thetas)
-        self._smoother.update(graph, values, key_stamps([(frame_key(f), t)]))
-        self._window.leave_all_but(f, thetas, sigmas)
-        self._tracks.bases = {f: self._tracks.bases.get(f)}
-        if status is not None:
-            self._window.status[f] = np.full(S, status, dtype="<U24")
-        self._tracks.reset(keep=f)
-        self._live_indices = []
-        self._landmarks.reset()
-
     def _retire(self, leaving: list[int]) -> None:
         """Record the final estimate of frames that the coming update marginalises."""
         self._landmarks.retire(leaving)
-        if 0 in leaving and self._window.status[0][0] == "initial":
-            self.start_contradicted = check_start(
+        first = self._first if 0 in leaving else None
+        if first is not None and self._window.status[0][0] == "initial":  # replaced next
+            self._first, self.start_contradicted = None, first.check(
                 self.theta0, self.options.theta0_sigma, self._window.thetas[0],
                 lambda: self._smoother.marginalCovariance(frame_key(0)),
                 self._window.last_time or 0.0)
+            self._reacquiring = self._reacquiring or first.replacement
         for g in sorted(leaving):
             self._window.leave(g, self._window.thetas[g].copy(), self._sigmas(g))
             self._tracks.bases.pop(g, None)

@@ -11,17 +11,30 @@ minus what remains after the images: the part the images explain), so
 follows a chi-square law with S degrees of freedom. A value far in its tail says the start
 contradicts the images: the estimates then carry the wrong start, which a tight prior will not
 let go of. Linear-Gaussian reasoning at the current estimate; angles in radians.
+
+So a smoother keeps the observations of its frames while the first is in its window
+(:class:`FirstFrames`); when the start contradicts them, the unknown-start search
+(:func:`~apcc_graph.estimation.start_search.find_start`) looks at those frames without the
+prior, and its answer, if the data determine one, replaces the start: the smoother re-acquires
+the frames from it in one batch (:class:`~apcc_graph.estimation.blackout.Reacquisition`), with a
+warning that says so.
 """
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import scipy.stats
 
+from apcc_graph.estimation.blackout import Reacquisition
+from apcc_graph.estimation.options import Robustness
+from apcc_graph.estimation.start_search import find_start
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.sequence import FrameObservations
 
 FALSE_ALARM = 1e-4
 """Probability of warning on a start that agrees with the images."""
@@ -44,12 +57,18 @@ def start_chi2(theta0: FloatArray, sigma0: float, estimate: FloatArray,
     return float(np.sum(proj**2 / lam[keep]))
 
 
+KEEPS = "The estimates keep the wrong start; give a better start or a looser start sigma"
+"""What follows a contradicted start that nothing replaced."""
+
+
 def check_start(theta0: FloatArray, sigma0: float, estimate: FloatArray,
-                covariance: Callable[[], FloatArray], frame_time: float) -> bool:
+                covariance: Callable[[], FloatArray], frame_time: float,
+                consequence: Callable[[], str] = lambda: KEEPS) -> bool:
     """Warn (:class:`StartWarning`) when the start contradicts the images; whether it does.
 
     ``covariance`` gives the first frame's marginal covariance (gtsam may fail to: then no
-    verdict); ``frame_time`` is the time of the newest frame, for the message."""
+    verdict); ``frame_time`` is the time of the newest frame, for the message; ``consequence``
+    says what happens next (called only when the start is contradicted)."""
     try:
         cov = covariance()
     except (RuntimeError, IndexError, ValueError):
@@ -63,6 +82,55 @@ def check_start(theta0: FloatArray, sigma0: float, estimate: FloatArray,
         f"the start configuration contradicts the images (chi-square {chi2:.0f} with "
         f"{len(theta0)} degrees of freedom, over {limit:.0f} happens with probability "
         f"{FALSE_ALARM:g}): by {frame_time:.2f} s the images had pulled the first frame by "
-        f"{moved} deg against a prior of {np.degrees(sigma0):.2f} deg. The estimates keep the "
-        "wrong start; give a better start or a looser start sigma", StartWarning, stacklevel=5)
+        f"{moved} deg against a prior of {np.degrees(sigma0):.2f} deg. {consequence()}",
+        StartWarning, stacklevel=5)
     return True
+
+
+class FirstFrames:
+    """A smoother's frames while its first is in the window, for the start search.
+
+    Args:
+        kept: the store of frames (its ``theta0`` and ``sigma`` are replaced by the search's).
+        spatial: the robot bends in 3-D (the search's parameterisation).
+        robustness: the smoother's outlier threshold.
+    """
+
+    def __init__(self, kept: Reacquisition, spatial: bool, robustness: Robustness) -> None:
+        self.kept, self.spatial, self.robustness = kept, spatial, robustness
+        self.replacement: Reacquisition | None = None
+
+    def keep(self, slot: int, t: float, observations: FrameObservations,
+             first_inside: bool) -> FirstFrames | None:
+        """Keep graph frame ``slot`` (at graph time ``t``) while the first frame is in the
+        window (``first_inside``); ``None`` once it is not."""
+        if not first_inside:
+            return None
+        self.kept.add(slot, t, observations)
+        return self
+
+    def check(self, theta0: FloatArray, sigma0: float, estimate: FloatArray,
+              covariance: Callable[[], FloatArray], frame_time: float) -> bool:
+        """:func:`check_start`; when the start is contradicted, search the kept frames and,
+        if they determine the start, set :attr:`replacement` (the frames to re-acquire from
+        the search's answer). Whether the start was contradicted."""
+        return check_start(theta0, sigma0, estimate, covariance, frame_time, self._search)
+
+    def _search(self) -> str:
+        sequence = self.kept.sequence()
+        span = float(sequence.timestamps[-1] - sequence.timestamps[0])
+        try:
+            found = find_start(sequence, span + 1.0, self.kept.options, spatial=self.spatial,
+                               robustness=self.robustness)
+        except (RuntimeError, ValueError, IndexError) as error:
+            return f"{KEEPS} (the start search failed: {error})"
+        if not found.determined:
+            return f"{KEEPS} (the start search could not tell: {found.reason})"
+        sigma = float(np.nanmax(found.sigma0, initial=math.radians(1.0)))
+        self.replacement = replace(self.kept, theta0=found.x0.copy(), sigma=sigma,
+                                   search=False)
+        shown = ", ".join(f"{v:.2f}" for v in np.degrees(found.theta0))
+        spread = ", ".join(f"{v:.2f}" for v in np.degrees(found.sigma0))
+        return (f"The start is replaced by the unknown-start search's answer over the first "
+                f"{found.n_frames} frames: {shown} deg (sigma {spread} deg), and those frames "
+                "are re-estimated from it")

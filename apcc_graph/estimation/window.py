@@ -228,6 +228,18 @@ class Window:
                                           (sigmas or {}).get(g, nan), self.status.pop(g))
             self._keep_recent(g, est)
 
+    def reacquired(self, slots: Iterable[int], thetas: FloatArray, blocks: FloatArray,
+                   n_segments: int) -> None:
+        """Frames ``slots`` take re-acquired estimates ``thetas`` and flattened covariance
+        blocks (status ``"reacquired"``): those in the window, and those that left at a
+        restart and were not taken yet."""
+        status = np.full(n_segments, "reacquired", dtype="<U24")
+        for h, th, cov in zip(slots, thetas, blocks, strict=True):
+            if self.inside(h):
+                self.thetas[h], self.status[h] = th, status
+            elif h in self.final:
+                self.final[h] = SmootherFrame(h, self.final[h].timestamp, th, cov, status)
+
     def pop_final(self) -> list[SmootherFrame]:
         """The frames that left since the last call, in order, and forget them."""
         out = [self.present(self.final[g]) for g in sorted(self.final)]

@@ -1,0 +1,135 @@
+"""What the fixed-lag smoother does after a gap in what it saw: :class:`Restarts`.
+
+A mixin of :class:`~apcc_graph.estimation.smoother.FixedLagSmoother` (it reads the smoother's
+window, tracks and landmarks):
+
+- :meth:`Restarts._watch_gaps` notices the two gaps after which the window's last estimate
+  no longer says where the robot is: tracks that return after every camera was blind
+  (:func:`~apcc_graph.estimation.blackout.tracks_returned`), and a pause in the recording longer
+  than the lag, during which the robot may have moved anywhere, when no track seen before it
+  comes back (with some, their points tie the new frame to the old ones). Either is said
+  (:class:`~apcc_graph.estimation.blackout.BlackoutWarning`) and starts a
+  :class:`~apcc_graph.estimation.blackout.Reacquisition` of the frames that follow;
+- :meth:`Restarts._reacquire` solves those frames in one batch, from the unknown-start
+  search's answer, once the first of them is about to leave the window, and restarts the
+  window at the newest (:meth:`Restarts._restart`, also used after a gtsam failure).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.estimation.blackout import (
+    Reacquisition,
+    tracks_returned,
+    warn_blackout,
+    warn_pause,
+)
+from apcc_graph.estimation.graph import frame_key
+from apcc_graph.estimation.landmarks import Landmarks
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.projection_tracks import ProjectionTracks, Rows
+from apcc_graph.estimation.window import Window, component_sigmas, key_stamps
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
+from apcc_graph.model.robot import Robot
+
+LOOSE = math.pi / 6
+"""Radians: the start prior of a re-acquisition when nothing says how far the robot went."""
+
+
+class Restarts:
+    """Blackouts, pauses and restarts of the fixed-lag smoother (module docstring)."""
+
+    # What it reads of the smoother that mixes it in.
+    robot: Robot
+    options: GraphOptions
+    bending: Bending
+    inlier_sigmas: float
+    _window: Window
+    _tracks: ProjectionTracks
+    _landmarks: Landmarks
+    _tracked: bool
+    _previous_rows: Rows
+    _reacquiring: Reacquisition | None
+    _live_indices: list[int]
+    _known: Callable[[int, NDArray[np.int64]], NDArray[np.bool_]]
+    _sigmas: Callable[[int], FloatArray]
+    _smoother: gtsam.FixedLagSmoother
+    _pause_at: int | None = None  # the first graph frame after the last pause
+
+    def _watch_gaps(self, f: int, t: float, rows: Rows, frame: int,
+                    timestamp: float) -> None:
+        """Before graph frame ``f`` (graph time ``t``) enters: start a re-acquisition if the
+        tracks come back after a blackout, or if the recording paused longer than the lag
+        (``frame``, ``timestamp``: as received, for the warnings)."""
+        window = self._window
+        if not (self._tracked and rows):
+            return
+        if window.inside(f - 1) and tracks_returned(rows, self._previous_rows, self._known):
+            sigmas = component_sigmas(self.bending, self._sigmas(f - 1))
+            warn_blackout(frame, timestamp, sigmas)
+            start, sigma = window.thetas[f - 1], float(np.nanmax(sigmas, initial=LOOSE))
+        elif (window.last_time is not None and t - window.last_time > window.lag
+              and window.latest(f - 1) is not None):
+            gap, self._pause_at = t - window.last_time, f
+            if any(np.any(self._known(cam, ids)) for cam, (ids, _, _) in rows.items()):
+                return  # tracks seen before the pause tie the new frame to the old ones
+            motion = self.options.motion_sigma
+            sigma = LOOSE if motion is None else min(LOOSE, motion * math.sqrt(gap))
+            warn_pause(frame, timestamp, gap, sigma)
+            start = window.latest(f - 1)
+        else:
+            return
+        self._reacquiring = Reacquisition(self.robot, self.options, self.inlier_sigmas,
+                                          self.bending, start, sigma)
+
+    def _older(self, f: int) -> FloatArray | None:
+        """Frame ``f - 2``'s estimate for the constant-velocity prediction of frame ``f``;
+        ``None`` (no velocity) across a pause."""
+        if self._pause_at is not None and f - 2 < self._pause_at:
+            return None
+        return self._window.latest(f - 2)
+
+    def _reacquire(self, kept: Reacquisition) -> None:
+        """One batch over the frames kept since a blackout or a pause (or since the start,
+        replaced); they take its angles and sigmas, and the window restarts at the newest
+        (:mod:`apcc_graph.estimation.blackout`)."""
+        self._reacquiring, window, g = None, self._window, kept.slots[-1]
+        if not window.inside(g):
+            return
+        try:
+            thetas, blocks, sigmas = kept.solve()
+        except (RuntimeError, ValueError, IndexError):
+            return  # the window goes on as it was
+        window.reacquired(kept.slots, thetas, blocks, self.robot.n_segments)
+        sigma = np.where(np.isfinite(sigmas[-1]), np.maximum(sigmas[-1], 1e-6), LOOSE)
+        self._restart(g, window.stamps[g], thetas[-1], gtsam.noiseModel.Diagonal.Sigmas(sigma),
+                      None, dict(zip(kept.slots, blocks, strict=True)))
+
+    def _restart(self, f: int, t: float, thetas: FloatArray,
+                 prior: gtsam.noiseModel.Base | None = None, status: str | None = "recovered",
+                 sigmas: Mapping[int, FloatArray] | None = None) -> None:
+        """A new smoother holding only frame f, at ``thetas``, with ``prior`` (default: a sigma
+        of ``options.theta0_sigma``, at least 1 deg); the other frames leave with their last
+        estimates (and ``sigmas``). After a gtsam failure, or after a re-acquisition."""
+        self._window.renew()
+        graph = gtsam.NonlinearFactorGraph()
+        sigma = max(self.options.theta0_sigma, math.radians(1.0))
+        prior = prior or gtsam.noiseModel.Isotropic.Sigma(len(thetas), sigma)
+        graph.add(gtsam.PriorFactorVector(frame_key(f), thetas, prior))
+        values = gtsam.Values()
+        values.insert(frame_key(f), thetas)
+        self._smoother.update(graph, values, key_stamps([(frame_key(f), t)]))
+        self._window.leave_all_but(f, thetas, sigmas)
+        self._tracks.bases = {f: self._tracks.bases.get(f)}
+        if status is not None:
+            self._window.status[f] = np.full(self.robot.n_segments, status, dtype="<U24")
+        self._tracks.reset(keep=f)
+        self._live_indices = []
+        self._landmarks.reset()
