@@ -11,7 +11,7 @@ import gtsam
 import numpy as np
 import pytest
 import test_projection_calibration as segment_calibration
-from helpers import random_pose
+from helpers import factor_hessian, random_pose
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -134,12 +134,7 @@ def test_factor_has_a_pose3_mount_block(lens_robot: Robot) -> None:
                                    + [mount_key(cam)])
     want = reduced_system(obs, chain.with_mount(moved), thetas, 0, np.ones(len(obs)),
                           calibration=True, mount=True)
-    graph = gtsam.GaussianFactorGraph()
-    graph.push_back(factor.linearize(values))
-    ordering = gtsam.Ordering()
-    for k in factor.keys():
-        ordering.push_back(k)
-    info, eta = graph.hessian(ordering)
+    info, eta = factor_hessian(factor, values)
     D0 = F * S
     index = np.concatenate([((np.arange(F) * S)[:, None] + np.arange(cam + 1)).ravel(),
                             D0 + np.arange(2 * (cam + 1) + 6)])

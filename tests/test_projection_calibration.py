@@ -9,7 +9,7 @@ import math
 import gtsam
 import numpy as np
 import pytest
-from helpers import random_pose
+from helpers import factor_hessian, random_pose
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -170,12 +170,7 @@ def test_factor_has_calibration_blocks(lens_robot: Robot) -> None:
                                    + [calibration_key(j) for j in range(n)])
     moved = _chain_with(chain, np.array([[k + 0.01, d - 0.02] for k, d in true_cal[:n]]))
     want = reduced_system(obs, moved, thetas, 0, np.ones(len(obs)), calibration=True)
-    graph = gtsam.GaussianFactorGraph()
-    graph.push_back(factor.linearize(values))
-    ordering = gtsam.Ordering()
-    for k in factor.keys():
-        ordering.push_back(k)
-    info, eta = graph.hessian(ordering)
+    info, eta = factor_hessian(factor, values)
     D0 = F * S
     index = np.concatenate([((np.arange(F) * S)[:, None] + np.arange(n)).ravel(),
                             D0 + np.arange(2 * n)])

@@ -12,6 +12,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 import pytest
+from helpers import factor_hessian
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -179,12 +180,7 @@ def test_spatial_factor_gradient_and_linearisation_through_straight(robot, cam: 
     values = gtsam.Values()
     for f in range(8):
         values.insert(frame_key(f), bends[f])
-    graph = gtsam.GaussianFactorGraph()
-    graph.push_back(factor.linearize(values))
-    ordering = gtsam.Ordering()
-    for k in factor.keys():
-        ordering.push_back(k)
-    info, _ = graph.hessian(ordering)
+    info, _ = factor_hessian(factor, values)
     index = ((np.arange(8) * 6)[:, None] + np.arange(n)).ravel()
     want = reduced_system(obs, chain, bends, 0, w, out.points)
     np.testing.assert_allclose(info[np.ix_(index, index)], want.H, rtol=0,
