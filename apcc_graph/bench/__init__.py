@@ -8,7 +8,7 @@ and the command line import the benchmarks, never the reverse.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 ROBOT_FILE = Path(__file__).resolve().parent / "planar_three.toml"
@@ -24,3 +24,8 @@ def best_time(fn: Callable[[], object], repeats: int) -> float:
         fn()
         best = min(best, time.perf_counter() - start)
     return best
+
+
+def table_cells(values: Iterable[float], fmt: str = "6.3f") -> str:
+    """One row's numbers for a benchmark table, each formatted with ``fmt``."""
+    return " ".join(f"{v:{fmt}}" for v in values)

@@ -28,6 +28,7 @@ import gtsam
 import numpy as np
 from tqdm import tqdm
 
+from apcc_graph.bench import table_cells as _cells
 from apcc_graph.bench.self_calibration import CALIBRATION_SIGMAS
 from apcc_graph.bench.smoother import NOISE_PX, ROBOT_FILE, THETA0_SIGMA, room_simulation
 from apcc_graph.estimation.batch import batch_estimate
@@ -122,9 +123,6 @@ def _changes(robot: Robot, truth: Robot) -> np.ndarray:
                      for a, b in zip(robot.cameras, truth.cameras, strict=True)
                      if a is not None and b is not None])
 
-
-def _cells(values: np.ndarray, fmt: str = "6.3f") -> str:
-    return " ".join(f"{v:{fmt}}" for v in values)
 
 
 def format_mount_benchmark(r: MountBenchmark) -> str:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
+from apcc_graph.bench import table_cells as _cells
 from apcc_graph.bench.smoother import NOISE_PX, ROBOT_FILE, THETA0_SIGMA, room_simulation
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.evaluation.sequence_bound import sequence_bound
@@ -106,9 +107,6 @@ def run_self_calibration_benchmark(frames: int = 600, seeds: SequenceOf[int] = (
             cal.calibration_sigmas, unknown.calibration, seconds))
     return SelfCalibrationBenchmark(frames, outliers, dk, dd, tuple(runs))
 
-
-def _cells(values: np.ndarray, fmt: str = "6.3f") -> str:
-    return " ".join(f"{v:{fmt}}" for v in values)
 
 
 def format_self_calibration_benchmark(r: SelfCalibrationBenchmark) -> str:

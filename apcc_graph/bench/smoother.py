@@ -38,6 +38,7 @@ import numpy as np
 from tqdm import tqdm
 
 from apcc_graph.bench import ROBOT_FILE
+from apcc_graph.bench import table_cells as _cells
 from apcc_graph.bench.engines import EngineTimes, engine_times, format_engine_times
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
@@ -255,9 +256,6 @@ def run_smoother_benchmark(
                              rss_large, tuple(engines))
 
 
-def _cells(values: np.ndarray, fmt: str = "7.3f") -> str:
-    return " ".join(f"{v:{fmt}}" for v in values)
-
 
 def _per_seed(r: SmootherBenchmark) -> list[str]:
     deg = np.degrees
@@ -266,8 +264,9 @@ def _per_seed(r: SmootherBenchmark) -> list[str]:
            f"  {'case':<13} {'seed':>4} {'method':<18} {'RMS seg 1..3':>23}   "
            f"{'bound seg 1..3':>23}   {'RMS / bound':>17}  {'seconds':>8}"]
     for run in r.runs:
-        out.append(f"  {run.case:<13} {run.seed:>4} {run.method:<18} {_cells(deg(run.rms))}   "
-                   f"{_cells(deg(run.bound))}   {_cells(run.ratio, '5.2f')}  "
+        out.append(f"  {run.case:<13} {run.seed:>4} {run.method:<18} "
+                   f"{_cells(deg(run.rms), '7.3f')}   "
+                   f"{_cells(deg(run.bound), '7.3f')}   {_cells(run.ratio, '5.2f')}  "
                    f"{run.seconds:8.1f}")
     return out
 

@@ -122,6 +122,7 @@ def _add_selfcal(benches: argparse._SubParsersAction) -> None:
                      help="error of every segment's delta_max, degrees")
     scb.set_defaults(run=run_selfcal)
 
+
 def _add_mounts(benches: argparse._SubParsersAction) -> None:
     """Add ``bench mounts``."""
     mnb = _bench(
