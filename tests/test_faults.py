@@ -150,3 +150,42 @@ def test_known_failures_recover_within_30_frames(
     name = next(n for n in cases if n.startswith(prefix))
     row, _ = _run(cases, undisturbed, name)
     assert row.recovery is not None and row.recovery <= 30, row
+
+
+@pytest.mark.parametrize(("offset_sigmas", "replaced"), [(2.0, False), (4.0, True)])
+def test_the_start_is_replaced_only_by_a_search_answer_far_from_it(
+        monkeypatch: pytest.MonkeyPatch, offset_sigmas: float, replaced: bool) -> None:
+    """The decision rule alone (the search stubbed): an answer within 3 combined sigmas of the
+    start does not replace it (on a real robot's replay the contradiction can be the model's,
+    not the start's); one further away does, and the warning says which."""
+    from apcc_graph.bench import ROBOT_FILE
+    from apcc_graph.estimation import start_check
+    from apcc_graph.estimation.blackout import Reacquisition
+    from apcc_graph.estimation.options import GraphOptions, Robustness
+    from apcc_graph.estimation.start_search import Hypothesis, StartSearch
+    from apcc_graph.io.robot_file import load_robot
+    from apcc_graph.model.parameterisation import Bending
+    from apcc_graph.model.sequence import FrameObservations
+
+    robot = load_robot(ROBOT_FILE)
+    bending = Bending.fixed(robot.segments)
+    theta0, sigma0, search_sigma = np.radians([10.0, -5.0, 3.0]), math.radians(0.5), 0.02
+    combined = math.hypot(search_sigma, sigma0)
+    x0 = theta0 + np.array([offset_sigmas * combined, 0.0, 0.0])
+    blocks = np.full((2, 3, 1, 1), search_sigma**2)
+    answer = StartSearch(2, 0.1, (Hypothesis(x0, np.stack([x0, x0]), blocks, 1.0),), True, "",
+                         bending)
+    monkeypatch.setattr(start_check, "find_start", lambda *args, **kwargs: answer)
+    kept = Reacquisition(robot, GraphOptions(), 3.0, bending, theta0, sigma0)
+    first = start_check.FirstFrames(kept, False, Robustness())
+    for f in range(2):
+        first.keep(f, f / 30.0, FrameObservations(f / 30.0, {}), True)
+    with pytest.warns(StartWarning) as said:
+        assert first.check(theta0, sigma0, theta0 + 0.2, lambda: np.eye(3) * 1e-8, 1.0)
+    assert (first.replacement is not None) == replaced
+    message = str(said[0].message)
+    assert ("replaced by the unknown-start search's answer" in message) == replaced
+    assert ("within 3 sigma" in message) == (not replaced)
+    if replaced:
+        np.testing.assert_array_equal(first.replacement.theta0, x0)
+        assert first.replacement.search is False

@@ -57,6 +57,10 @@ def start_chi2(theta0: FloatArray, sigma0: float, estimate: FloatArray,
     return float(np.sum(proj**2 / lam[keep]))
 
 
+AGREE = 3.0
+"""A start search's answer this many combined sigmas (its own and the start prior's) from the
+start, on some component, replaces the start; closer, the start is kept."""
+
 KEEPS = "The estimates keep the wrong start; give a better start or a looser start sigma"
 """What follows a contradicted start that nothing replaced."""
 
@@ -114,9 +118,10 @@ class FirstFrames:
         """:func:`check_start`; when the start is contradicted, search the kept frames and,
         if they determine the start, set :attr:`replacement` (the frames to re-acquire from
         the search's answer). Whether the start was contradicted."""
-        return check_start(theta0, sigma0, estimate, covariance, frame_time, self._search)
+        return check_start(theta0, sigma0, estimate, covariance, frame_time,
+                           lambda: self._search(np.asarray(theta0, dtype=float), sigma0))
 
-    def _search(self) -> str:
+    def _search(self, theta0: FloatArray, sigma0: float) -> str:
         sequence = self.kept.sequence()
         span = float(sequence.timestamps[-1] - sequence.timestamps[0])
         try:
@@ -126,6 +131,15 @@ class FirstFrames:
             return f"{KEEPS} (the start search failed: {error})"
         if not found.determined:
             return f"{KEEPS} (the start search could not tell: {found.reason})"
+        variance = np.diagonal(found.hypotheses[0].blocks[0], axis1=-2, axis2=-1).ravel()
+        z = np.abs(found.x0 - theta0) / np.sqrt(np.nan_to_num(variance, nan=np.inf) + sigma0**2)
+        if not np.max(z) > AGREE:
+            # The images, through the model, do not tell another start: what contradicts them
+            # is the model (a real robot's mismatch), not the start; a search answer within
+            # its own sigma would only trade the start for noise.
+            return (f"{KEEPS} (the start search over the first {found.n_frames} frames finds a "
+                    f"start within {AGREE:g} sigma of it: the images and the model disagree, "
+                    "more than the start does)")
         sigma = float(np.nanmax(found.sigma0, initial=math.radians(1.0)))
         self.replacement = replace(self.kept, theta0=found.x0.copy(), sigma=sigma,
                                    search=False)
