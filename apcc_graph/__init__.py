@@ -33,6 +33,8 @@ _EXPORTS = {
     "estimate": "apcc_graph.estimation.methods",
     "Estimate": "apcc_graph.estimation.result",
     "find_start": "apcc_graph.estimation.start_search",
+    "check_model_fit": "apcc_graph.estimation.model_fit",
+    "ModelFitWarning": "apcc_graph.estimation.model_fit",
     "UnknownStartError": "apcc_graph.estimation.start_search",
     "FixedLagSmoother": "apcc_graph.estimation.smoother",
     "GraphOptions": "apcc_graph.estimation.options",

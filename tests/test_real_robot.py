@@ -596,3 +596,27 @@ def test_bench_real_scores_each_stretch_and_pools_them(
     assert f"sweep: {len(thetas) - gap.sum()} frames in the stretches" in table
     with pytest.raises(ValueError, match="no such file"):
         run_real_bench(tmp_path, nominal, recordings=("missing",))
+
+
+def test_bench_real_pools_the_honesty_of_every_stretch() -> None:
+    from apcc_graph.bench.real_robot import RealRow, _Honesty, _pooled_honesty
+
+    a = _Honesty(np.array([[1.0, 4.0], [3.0, np.nan]]), np.array([10.0, 0.0]),
+                 np.array([100.0, 50.0]), True)
+    b = _Honesty(np.array([[2.0, 2.0]]), np.array([5.0, 1.0]), np.array([400.0, 50.0]), False)
+    nees, share, warned = _pooled_honesty([a, b], 2)
+    # every frame counts once; a NaN (no sigma) is left out of its segment's mean
+    np.testing.assert_allclose(nees, [2.0, 3.0])
+    # the shares pool the observations, not the stretches
+    np.testing.assert_allclose(share, [15.0 / 500.0, 1.0 / 100.0])
+    assert warned == 1
+    nees, share, warned = _pooled_honesty([], 2)
+    assert np.isnan(nees).all() and np.isnan(share).all() and warned == 0
+    row = RealRow("rec", "real", "batch", np.array([0.01, 0.02]), np.array([0.1, 0.2]), 1.0,
+                  3, None, np.array([2.0, 3.0]), np.array([0.03, 0.01]), 1, 2)
+    floor = RealRow("rec", "real", "floor", np.array([0.001, 0.002]), np.array([0.0, 0.0]),
+                    0.0, 3)
+    table = format_real_bench([floor, row])
+    honest = [line for line in table.splitlines() if line.startswith("rec") and "%" in line]
+    assert len(honest) == 1
+    assert honest[0].split()[3:] == ["2", "3", "3.0%", "1.0%", "1/2"]

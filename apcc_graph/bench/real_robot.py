@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from scipy.spatial.transform import Rotation
 from apcc_graph.calibration.backbone_fit import fit_backbone
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
+from apcc_graph.estimation.model_fit import ModelFitWarning
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.evaluation.tip_floor import (
@@ -63,6 +65,14 @@ class RealRow:
     Attributes:
         frames: frames scored (over the stretches replayed).
         turn: ``(S,)`` 95th percentile of the tip cameras' rotation from frame to frame (rad).
+        nees: ``(S,)`` mean ``(e / sigma)^2`` of each segment's bend, ``e`` against the floor's
+            bends (the bending vector's error and sigma; NaN without sigmas): whether the
+            sigmas cover the errors (about 1 when they do).
+        misfit: ``(S,)`` the residual test's share of each camera's model-free inliers that the
+            model rejects at the estimate (:mod:`~apcc_graph.estimation.model_fit`; NaN
+            where it was not run).
+        warned: in how many of the stretches the residual test warned.
+        stretches: how many stretches the row pools.
     """
 
     recording: str
@@ -73,6 +83,10 @@ class RealRow:
     seconds: float
     frames: int = 0
     turn: np.ndarray | None = None
+    nees: np.ndarray | None = None
+    misfit: np.ndarray | None = None
+    warned: int = 0
+    stretches: int = 0
 
 
 def _pooled(errors: list[TipErrors]) -> TipErrors:
@@ -117,6 +131,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
     kept = [k for k, (a, b, _) in enumerate(motion_stretches(ends)) if b - a >= MIN_STRETCH]
     errors: dict[tuple[str, str], list[TipErrors]] = {}
     seconds: dict[tuple[str, str], float] = {}
+    honesty: dict[tuple[str, str], list[_Honesty]] = {}
     turns = []
     for k in kept:
         real = replay_motion(model, ends, stretch=k, **options).simulation.sequence
@@ -130,18 +145,65 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
         for version, seq in (("real", real), ("model-exact", exact)):
             for method in methods:
                 start = time.perf_counter()
-                est = _estimate(seq, method, floor, start_sigma, noise_px, model_sigma)
+                with warnings.catch_warnings():  # the table counts the residual test's
+                    warnings.simplefilter("ignore", ModelFitWarning)
+                    est = _estimate(seq, method, floor, start_sigma, noise_px, model_sigma)
                 errors.setdefault((version, method), []).append(
                     tip_errors(model.forward(est.thetas, est.psis), seq.truth_tips))
+                honesty.setdefault((version, method), []).append(_honesty(est, floor))
                 seconds[version, method] = (seconds.get((version, method), 0.0)
                                             + time.perf_counter() - start)
     turn = np.percentile(np.concatenate(turns), 95, axis=0) if turns else None
     rows = []
     for (version, method), errs in errors.items():
         pooled = _pooled(errs)
+        nees, misfit, warned = _pooled_honesty(honesty.get((version, method), []),
+                                               len(pooled.rms_position))
         rows.append(RealRow(name, version, method, pooled.rms_position, pooled.rms_tangent,
-                            seconds.get((version, method), 0.0), len(pooled.position), turn))
+                            seconds.get((version, method), 0.0), len(pooled.position), turn,
+                            nees, misfit, warned, len(errs)))
     return rows
+
+
+@dataclass(frozen=True)
+class _Honesty:
+    """One stretch's ``(F, S)`` normalised squared errors, and its residual test."""
+
+    nees: np.ndarray
+    rejected: np.ndarray  # (S,) model-free inliers the model rejects (NaN: no test)
+    accepted: np.ndarray  # (S,) model-free inliers
+    warned: bool
+
+
+def _honesty(est: Estimate, floor: TipFloor) -> _Honesty:
+    """Whether an estimate's sigmas cover its errors against the floor's bends, and what its
+    residual test said."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nees = (est.errors(floor.thetas, floor.psis) / est.bend_sigmas()) ** 2
+    S = est.thetas.shape[1]
+    rejected, accepted = np.full(S, np.nan), np.zeros(S)
+    fit = est.model_fit
+    if fit is not None:
+        for cam in fit.cameras:
+            rejected[cam.camera], accepted[cam.camera] = cam.rejected, cam.accepted
+    return _Honesty(nees, rejected, accepted, fit is not None and not fit.explained)
+
+
+def _pooled_honesty(parts: list[_Honesty], n_segments: int
+                    ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Mean ``(e / sigma)^2`` per segment over every frame, the share rejected per camera over
+    every stretch, and how many stretches warned."""
+    if not parts:
+        nan = np.full(n_segments, np.nan)
+        return nan, nan, 0
+    nees = np.concatenate([p.nees for p in parts])
+    finite = np.isfinite(nees)
+    with np.errstate(invalid="ignore"):
+        mean = np.where(finite.any(axis=0), np.nansum(np.where(finite, nees, 0.0), axis=0)
+                        / np.maximum(finite.sum(axis=0), 1), np.nan)
+        share = (np.sum([p.rejected for p in parts], axis=0)
+                 / np.sum([p.accepted for p in parts], axis=0))
+    return mean, share, sum(p.warned for p in parts)
 
 
 def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers: float = 0.1,
@@ -188,6 +250,24 @@ def format_real_bench(rows: list[RealRow]) -> str:
     if any(r.method in ("noise", "noise@floor") for r in rows):
         lines.append("noise: the batch with model error as noise; noise@floor: the same started "
                      "at the floor's bends of every frame (a yardstick: the right basin given)")
+    honest = [r for r in rows if r.nees is not None and np.isfinite(r.nees).any()]
+    if honest:
+        lines.append("")
+        lines.append("honesty: mean (e/sigma)^2 per segment against the floor's bends (about 1 "
+                     "when the sigmas cover the errors), and the residual test: the share of "
+                     "each camera's model-free inliers the model rejects at the estimate "
+                     "(0.2% expected when the model explains the images; warns above 5%)")
+        lines.append(f"{'recording':<17}{'motion':<13}{'method':<10}"
+                     + "".join(f"{f'(e/s)^2 {i + 1}':>12}" for i in range(n_seg))
+                     + "".join(f"{f'rejected {i + 1}':>12}" for i in range(n_seg))
+                     + f"{'warned':>10}")
+        for r in honest:
+            assert r.nees is not None and r.misfit is not None
+            lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<10}"
+                         + "".join(f"{v:>12.3g}" for v in r.nees)
+                         + "".join(f"{'-' if not np.isfinite(v) else f'{100 * v:.1f}%':>12}"
+                                   for v in r.misfit)
+                         + f"{f'{r.warned}/{r.stretches}':>10}")
     for r in rows:
         if r.method == "floor" and r.turn is not None:
             lines.append(f"{r.recording}: {r.frames} frames in the stretches of at least "

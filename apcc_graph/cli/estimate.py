@@ -289,6 +289,9 @@ def _run_one(args: argparse.Namespace, folder: str) -> str:
             f"segment {i + 1} {v:.3f} deg" for i, v in enumerate(sigma)) + " (models and "
             "mounts at once can cost the angles far more than either alone: compare "
             "--calibrate models and --calibrate mounts)")
+    if result.model_fit is not None:
+        lines.append("residual test (does the model explain the images?):")
+        lines += ["  " + line for line in result.model_fit.summary().splitlines()]
     if sequence.thetas is not None:  # evaluation only: the estimator never read these
         rms = np.degrees(result.rms(sequence.thetas, sequence.psis))
         what = " (bending vector)" if result.spatial else ""

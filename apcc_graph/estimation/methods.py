@@ -9,6 +9,7 @@ from os import PathLike
 import numpy as np
 from numpy.typing import ArrayLike
 
+from apcc_graph.estimation.model_fit import ModelFit
 from apcc_graph.estimation.options import BatchOptions, ChainOptions, GraphOptions, Robustness
 from apcc_graph.estimation.result import Estimate, StartReport
 from apcc_graph.estimation.smoother_options import SmootherOptions
@@ -99,6 +100,10 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
 
     Warns:
         ObservationWarning: a camera observed nothing in the whole sequence (named).
+        ModelFitWarning: the batch's or the smoother's estimate fails the residual test
+            (:mod:`~apcc_graph.estimation.model_fit`, kept as the estimate's ``model_fit``;
+            ``Robustness(misfit_alarm=None)`` skips it): the images contradict the estimate,
+            so its sigmas are too small.
     """
     if not isinstance(sequence, Sequence):
         hint = (" (a path: load it first, apcc_graph.load_sequence(path))"
@@ -128,7 +133,31 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         graph = replace(graph, theta0_sigma=float(theta0_sigma))
     result = _run(sequence, method, theta0, psi0, spatial, graph, robustness, settings,
                   progress)
+    if method != "chain" and robustness.misfit_alarm is not None:
+        result = replace(result, model_fit=_model_fit(sequence, result, graph, robustness,
+                                                      theta0, psi0))
     return result if start is None else replace(result, start=start)
+
+
+def _model_fit(sequence: Sequence, result: Estimate, graph: GraphOptions,
+               robustness: Robustness, theta0: ArrayLike, psi0: ArrayLike | None) -> ModelFit:
+    """The residual test of an estimate with the robot it holds (calibrated or not) and the
+    start prior it was given; warns (:class:`~apcc_graph.estimation.model_fit.
+    ModelFitWarning`) when the images contradict it."""
+    from apcc_graph.estimation.bends import parameterisation, start_vector
+    from apcc_graph.estimation.model_fit import ModelFitWarning, check_model_fit
+
+    assert robustness.misfit_alarm is not None
+    bending = parameterisation(result.robot, result.spatial)
+    held = sequence if result.robot is sequence.robot else sequence.with_robot(result.robot)
+    fit = check_model_fit(held, bending.vector(result.thetas, result.psis), bending,
+                          options=graph, inlier_sigmas=robustness.inlier_sigmas,
+                          alarm=robustness.misfit_alarm, warn=False,
+                          start=(start_vector(sequence.robot, bending, theta0, psi0),
+                                 graph.theta0_sigma))
+    if not fit.explained:
+        warnings.warn(f"{result.method}: {fit.message()}", ModelFitWarning, stacklevel=3)
+    return fit
 
 
 def _records(method: str, graph: GraphOptions | None, robustness: Robustness | None,

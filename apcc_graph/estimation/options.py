@@ -3,7 +3,7 @@
 - :class:`GraphOptions`, the measurement model: the pixel noise, the priors (start, motion,
   joint limits) and how tracks enter the graph; shared by every estimator;
 - :class:`Robustness`: how outliers are decided (the inlier threshold, the batch's graduated
-  non-convexity);
+  non-convexity) and when the residual test says the model does not explain the images;
 - one record per method: :class:`ChainOptions`, :class:`BatchOptions` and
   :class:`~apcc_graph.estimation.smoother_options.SmootherOptions`.
 
@@ -84,10 +84,16 @@ class Robustness:
         schedule: the batch's graduated non-convexity: the values of ``mu`` of its stages,
             ending with ``inf`` (the truncated quadratic itself); ``None`` fits one to the
             residuals at the batch's start.
+        misfit_alarm: the residual test of the batch's and the smoother's estimates
+            (:mod:`~apcc_graph.estimation.model_fit`): a camera whose model rejects more than
+            this share of the observations the images alone accept gets a
+            ``ModelFitWarning`` (the model does not explain its images); ``None`` skips the
+            test.
     """
 
     inlier_sigmas: float = 3.5
     schedule: tuple[float, ...] | None = None
+    misfit_alarm: float | None = 0.05
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.inlier_sigmas) and self.inlier_sigmas > 0.0):
@@ -100,6 +106,9 @@ class Robustness:
                 raise ValueError(f"Robustness.schedule = {self.schedule!r}: expected positive "
                                  "values of mu ending with inf")
             object.__setattr__(self, "schedule", schedule)
+        if self.misfit_alarm is not None and not 0.0 < self.misfit_alarm < 1.0:
+            raise ValueError(f"Robustness.misfit_alarm = {self.misfit_alarm!r}: expected a "
+                             "share in (0, 1), or None to skip the residual test")
 
 
 @dataclass(frozen=True)

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.model.arrays import FloatArray, rms
 from apcc_graph.model.robot import Robot
+
+if TYPE_CHECKING:
+    from apcc_graph.estimation.model_fit import ModelFit
 
 
 @dataclass(frozen=True)
@@ -63,6 +67,9 @@ class Estimate:
         psi_sigmas: ``(F, S)`` standard deviations of ``psis`` to first order (radians; they
             grow like ``1 / theta`` toward straight, where the bending plane is undefined, and
             are ``inf`` at exactly straight; NaN where the method gives none), or ``None``.
+        model_fit: the residual test of the estimate (:mod:`~apcc_graph.estimation.
+            model_fit`: does the kinematic model explain the images?), for the batch and the
+            smoother through :func:`apcc_graph.estimate`; ``None`` when it was not run.
     """
 
     method: str
@@ -78,6 +85,7 @@ class Estimate:
     start: StartReport | None = field(default=None, repr=False)
     psis: FloatArray | None = field(default=None, repr=False)
     psi_sigmas: FloatArray | None = field(default=None, repr=False)
+    model_fit: ModelFit | None = field(default=None, repr=False)
 
     @property
     def n_frames(self) -> int:

@@ -347,6 +347,17 @@ class Sequence:
         return Sequence(self.robot, self.timestamps[:n_frames], tracks, cut(self.world_T_base),
                         cut(self.thetas), cut(self.psis), images)
 
+    def with_robot(self, robot: Robot) -> Sequence:
+        """The same recording seen through another model of the robot (e.g. a calibrated one:
+        the same cameras, other segment models or mounts).
+
+        Raises:
+            ValueError: ``robot`` lacks a camera this sequence has tracks of, or has another
+                number of segments than the truth columns.
+        """
+        return Sequence(robot, self.timestamps, self.tracks, self.world_T_base, self.thetas,
+                        self.psis, self.images, self.truth_tips)
+
     def correspondences(self, cam: int, a: int, b: int) -> Correspondences:
         """The tracks camera ``cam`` saw in both frames a and b, as pixels and bearings."""
         rows_a, rows_b = self._rows(cam, a), self._rows(cam, b)
