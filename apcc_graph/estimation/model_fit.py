@@ -144,7 +144,7 @@ class ModelFit:
         lines = [] if self.start is None else [self.start.summary()]
         for c in self.cameras:
             verdict = "FAILS" if c in self.failing() else "ok"
-            lines.append(f"camera on segment {c.camera + 1}: the model rejects "
+            lines.append(f"cam_{c.camera + 1}: the model rejects "
                          f"{100 * c.share:.1f}% of the {c.accepted} observations the images "
                          f"alone accept (expected {100 * c.expected:.1f}%, alarm "
                          f"{100 * self.alarm:.0f}%): {verdict}")
