@@ -613,10 +613,10 @@ def test_bench_real_pools_the_honesty_of_every_stretch() -> None:
     nees, share, warned = _pooled_honesty([], 2)
     assert np.isnan(nees).all() and np.isnan(share).all() and warned == 0
     row = RealRow("rec", "real", "batch", np.array([0.01, 0.02]), np.array([0.1, 0.2]), 1.0,
-                  3, None, np.array([2.0, 3.0]), np.array([0.03, 0.01]), 1, 2)
+                  3, None, np.array([2.0, 3.0]), np.array([0.03, 0.01]), 1, 2, 4)
     floor = RealRow("rec", "real", "floor", np.array([0.001, 0.002]), np.array([0.0, 0.0]),
                     0.0, 3)
     table = format_real_bench([floor, row])
     honest = [line for line in table.splitlines() if line.startswith("rec") and "%" in line]
     assert len(honest) == 1
-    assert honest[0].split()[3:] == ["2", "3", "3.0%", "1.0%", "1/2"]
+    assert honest[0].split()[3:] == ["2", "3", "3.0%", "1.0%", "1/2", "4"]

@@ -36,6 +36,8 @@ from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.model_fit import ModelFitWarning
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
+from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.window import RestartWarning
 from apcc_graph.evaluation.tip_floor import (
     TipErrors,
     TipFloor,
@@ -51,7 +53,9 @@ from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.replay import measured_ends, motion_stretches, replay_motion
 
 RECORDINGS = ("slow_free_space", "impulse_2")
-METHODS = ("chain", "batch", "noise", "smoother", "noise@floor")
+METHODS = ("chain", "batch", "noise", "smoother", "noise@floor", "smoother-qr")
+"""Every method the bench knows; ``smoother-qr`` (the smoother factoring its window by QR,
+``SmootherOptions(factorization="QR")``) is a peer, not in the default list."""
 MODEL_SIGMA = (1e-3, math.radians(0.5))
 """The benchmark's model noise (position m, rotation rad) for ``noise`` and ``noise@floor``."""
 MIN_STRETCH = 2.0
@@ -73,6 +77,7 @@ class RealRow:
             where it was not run).
         warned: in how many of the stretches the residual test warned.
         stretches: how many stretches the row pools.
+        restarts: how many times gtsam failed on a smoother's window (it restarted).
     """
 
     recording: str
@@ -87,6 +92,7 @@ class RealRow:
     misfit: np.ndarray | None = None
     warned: int = 0
     stretches: int = 0
+    restarts: int = 0
 
 
 def _pooled(errors: list[TipErrors]) -> TipErrors:
@@ -112,6 +118,10 @@ def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, n
                                                    theta0_sigma=start_sigma,
                                                    model_sigma=model_sigma))
     graph = GraphOptions(model_sigma=model_sigma) if method == "noise" else None
+    if method == "smoother-qr":
+        return estimate(seq, method="smoother", spatial=True, theta0=floor.thetas[0],
+                        psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px,
+                        settings=SmootherOptions(factorization="QR"))
     return estimate(seq, method="batch" if method == "noise" else method, spatial=True,
                     theta0=floor.thetas[0], psi0=floor.psis[0], theta0_sigma=start_sigma,
                     noise_px=noise_px, graph=graph)
@@ -132,6 +142,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
     errors: dict[tuple[str, str], list[TipErrors]] = {}
     seconds: dict[tuple[str, str], float] = {}
     honesty: dict[tuple[str, str], list[_Honesty]] = {}
+    restarts: dict[tuple[str, str], int] = {}
     turns = []
     for k in kept:
         real = replay_motion(model, ends, stretch=k, **options).simulation.sequence
@@ -145,9 +156,14 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
         for version, seq in (("real", real), ("model-exact", exact)):
             for method in methods:
                 start = time.perf_counter()
-                with warnings.catch_warnings():  # the table counts the residual test's
-                    warnings.simplefilter("ignore", ModelFitWarning)
+                with warnings.catch_warnings(record=True) as caught:  # the table counts them
+                    warnings.simplefilter("always")
                     est = _estimate(seq, method, floor, start_sigma, noise_px, model_sigma)
+                for w in caught:
+                    if not issubclass(w.category, ModelFitWarning | RestartWarning):
+                        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+                restarts[version, method] = restarts.get((version, method), 0) + sum(
+                    issubclass(w.category, RestartWarning) for w in caught)
                 errors.setdefault((version, method), []).append(
                     tip_errors(model.forward(est.thetas, est.psis), seq.truth_tips))
                 honesty.setdefault((version, method), []).append(_honesty(est, floor))
@@ -161,7 +177,8 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
                                                len(pooled.rms_position))
         rows.append(RealRow(name, version, method, pooled.rms_position, pooled.rms_tangent,
                             seconds.get((version, method), 0.0), len(pooled.position), turn,
-                            nees, misfit, warned, len(errs)))
+                            nees, misfit, warned, len(errs),
+                            restarts.get((version, method), 0)))
     return rows
 
 
@@ -260,14 +277,14 @@ def format_real_bench(rows: list[RealRow]) -> str:
         lines.append(f"{'recording':<17}{'motion':<13}{'method':<10}"
                      + "".join(f"{f'(e/s)^2 {i + 1}':>12}" for i in range(n_seg))
                      + "".join(f"{f'rejected {i + 1}':>12}" for i in range(n_seg))
-                     + f"{'warned':>10}")
+                     + f"{'warned':>10}{'restarts':>10}")
         for r in honest:
             assert r.nees is not None and r.misfit is not None
             lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<10}"
                          + "".join(f"{v:>12.3g}" for v in r.nees)
                          + "".join(f"{'-' if not np.isfinite(v) else f'{100 * v:.1f}%':>12}"
                                    for v in r.misfit)
-                         + f"{f'{r.warned}/{r.stretches}':>10}")
+                         + f"{f'{r.warned}/{r.stretches}':>10}{r.restarts:>10}")
     for r in rows:
         if r.method == "floor" and r.turn is not None:
             lines.append(f"{r.recording}: {r.frames} frames in the stretches of at least "

@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.estimation.bends import parameterisation, start_vector
 from apcc_graph.estimation.blackout import Reacquisition
+from apcc_graph.estimation.fit_monitor import BlockFit, FitMonitor
 from apcc_graph.estimation.frame_priors import frame_priors
 from apcc_graph.estimation.front_end import front_end_guess
 from apcc_graph.estimation.graph import frame_key
@@ -106,7 +107,8 @@ class FixedLagSmoother(Restarts):
         self.robot = robot
         self.options = o = GraphOptions() if options is None else options
         self._window = Window(s.lag, b.width**2 * robot.n_segments,
-                              lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold),
+                              lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold,
+                                                         s.factorization),
                               lambda frame: present_frame(b, frame))
         self._tracks = ProjectionTracks(robot, o, s, self._window, b, self.inlier_sigmas)
         w = self._window
@@ -124,6 +126,9 @@ class FixedLagSmoother(Restarts):
             self.spatial, robustness or Robustness())
         self._still = StillFrames(math.inf if s.still_frames is None else s.still_frames,
                                   s.still_chi2)
+        alarm = (robustness or Robustness()).misfit_alarm
+        self._monitor = (None if alarm is None or s.misfit_seconds is None else FitMonitor(
+            robot, b, o, self.inlier_sigmas, alarm, s.misfit_seconds))
 
     def __getattr__(self, name: str) -> Any:
         settings = self.__dict__.get("settings")
@@ -139,6 +144,12 @@ class FixedLagSmoother(Restarts):
     @_smoother.setter
     def _smoother(self, smoother: gtsam.FixedLagSmoother) -> None:
         self._window.smoother = smoother
+
+    @property
+    def model_fits(self) -> list[BlockFit]:
+        """The residual test of every block of final frames so far
+        (:mod:`~apcc_graph.estimation.fit_monitor`; empty when it is off)."""
+        return [] if self._monitor is None else list(self._monitor.blocks)
 
     @property
     def n_frames(self) -> int:
@@ -171,6 +182,8 @@ class FixedLagSmoother(Restarts):
         window, still = self._window, self._still
         f = window.count  # the graph frame it becomes, unless the robot stands still
         t = check_timestamp(still.count, observations.timestamp, still.last_time)
+        if self._monitor is not None:
+            self._monitor.observe(still.count, observations)
         rows = frame_rows(self.robot, still.count, observations, self.options.threshold_px)
         base = (None if observations.world_T_base is None
                 else np.asarray(observations.world_T_base, dtype=float))
@@ -334,7 +347,10 @@ class FixedLagSmoother(Restarts):
     def pop_final(self) -> list[SmootherFrame]:
         """The frames that left the window since the last call (with the still frames each
         stands for), in order, and forget them."""
-        return self._still.expand(self._window.pop_final())
+        frames = self._still.expand(self._window.pop_final())
+        if self._monitor is not None:
+            self._monitor.final(frames)
+        return frames
 
     def finish(self) -> list[SmootherFrame]:
         """Commit every live track, then return every frame's final estimate in order (frames
@@ -351,4 +367,8 @@ class FixedLagSmoother(Restarts):
                 self._read_window()
             except (RuntimeError, IndexError):
                 self._window.recoveries += 1
-        return self._still.expand(self._window.frames(self._sigmas), done=False)
+        frames = self._still.expand(self._window.frames(self._sigmas), done=False)
+        if self._monitor is not None:
+            self._monitor.final(frames)
+            self._monitor.flush()
+        return frames

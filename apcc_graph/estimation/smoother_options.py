@@ -40,6 +40,10 @@ def _coerce(record: object, kinds: Mapping[str, type]) -> None:
         object.__setattr__(record, name, kind(getattr(record, name)))
 
 
+FACTORIZATIONS = ("CHOLESKY", "QR")
+"""iSAM2's factorizations of the window's linear system."""
+
+
 @dataclass(frozen=True)
 class SmootherOptions:
     """The fixed-lag smoother's options
@@ -89,6 +93,12 @@ class SmootherOptions:
         still_chi2: a camera sees no motion while the chi-square of its tracks' coherent
             displacement stays below this (noise alone exceeds the default with probability
             1e-4).
+        factorization: how iSAM2 factors the window's linear system: ``"CHOLESKY"`` (of the
+            normal equations) or ``"QR"`` (of the whitened Jacobians, which does not square
+            their condition number; docs/estimation.md, "The fixed-lag smoother").
+        misfit_seconds: the residual test of the final frames, in blocks of this many seconds
+            (:mod:`~apcc_graph.estimation.fit_monitor`; a failing block warns); ``None`` skips
+            it (``apcc_graph.estimate`` tests the whole recording instead).
     """
 
     lag: float = 1.0
@@ -106,6 +116,8 @@ class SmootherOptions:
     max_landmarks: int = 10
     still_frames: int | None = 10
     still_chi2: float = 18.4
+    factorization: str = "CHOLESKY"
+    misfit_seconds: float | None = 2.0
 
     def __post_init__(self) -> None:
         _coerce(self, {"lag": float, "uncertainty": bool, "relinearize_threshold": float,
@@ -130,6 +142,12 @@ class SmootherOptions:
         _positive(self, "landmark_sigma", self.landmark_sigma, "metres")
         _positive(self, "pose_sigma", self.pose_sigma, "radians and metres")
         _at_least(self, "max_landmarks", self.max_landmarks, 0, "landmarks per camera")
+        if self.misfit_seconds is not None:
+            _coerce(self, {"misfit_seconds": float})
+            _positive(self, "misfit_seconds", self.misfit_seconds, "seconds")
+        if self.factorization not in FACTORIZATIONS:
+            raise ValueError(f"{type(self).__name__}.factorization = {self.factorization!r}: "
+                             f"expected one of {', '.join(FACTORIZATIONS)}")
 
 
 def smoother_settings(settings: SmootherOptions | None, lag: float | None,

@@ -99,12 +99,15 @@ def component_sigmas(bending: Bending, blocks: FloatArray) -> FloatArray:
     return np.sqrt(np.maximum(np.diagonal(C, axis1=-2, axis2=-1), 0.0)).ravel()
 
 
-def new_gtsam_smoother(lag: float, relinearize_threshold: float) -> gtsam.FixedLagSmoother:
-    """gtsam's iSAM2 fixed-lag smoother over ``lag`` seconds."""
+def new_gtsam_smoother(lag: float, relinearize_threshold: float,
+                       factorization: str = "CHOLESKY") -> gtsam.FixedLagSmoother:
+    """gtsam's iSAM2 fixed-lag smoother over ``lag`` seconds, factoring the window's linear
+    system by ``factorization`` (``"CHOLESKY"`` or ``"QR"``)."""
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(relinearize_threshold)
     params.relinearizeSkip = 1
     params.findUnusedFactorSlots = True
+    params.setFactorization(factorization)
     return gtsam.IncrementalFixedLagSmoother(lag, params)
 
 
