@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import fast_stretch_replay
 
-from apcc_graph.calibration.backbone_fit import fit_backbone
 from apcc_graph.cli import main
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.model_fit import (
@@ -25,13 +25,11 @@ from apcc_graph.estimation.model_fit import (
     expected_share,
 )
 from apcc_graph.estimation.options import Robustness
-from apcc_graph.evaluation.tip_floor import TipFloor, tip_floor
+from apcc_graph.evaluation.tip_floor import TipFloor
 from apcc_graph.io import load_robot
-from apcc_graph.io.backbone_poses import load_backbone_poses
 from apcc_graph.io.sequence_folder import save_sequence
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
-from apcc_graph.simulation.replay import measured_ends, replay_motion
 from apcc_graph.simulation.simulator import Simulation, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,24 +42,11 @@ def _simulation() -> Simulation:
                     n_points=2000)
 
 
-@cache
 def _replay(exact: bool, frames: int = 40) -> tuple[Sequence, TipFloor]:
     """The first frames of the fast stretch of the shipped real recording (cameras on the
     measured segment ends, or on the model's tips at the floor's bends), and the floor."""
-    robot = load_robot(ROOT / "data" / "robots" / "real_tdcr.toml")
-    poses = load_backbone_poses(ROOT / "data" / "real_tdcr" / "slow_free_space"
-                                / "backbone_poses.csv")
-    cal = fit_backbone(poses, robot)
-    model = cal.robot(robot)
-    markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
-    ends = measured_ends(poses, model, markers)
-    options = dict(noise_px=1.0, outlier_fraction=0.1, seed=0, stretch=1)
-    seq = replay_motion(model, ends, **options).simulation.sequence
-    floor = tip_floor(model, seq.truth_tips)
-    if exact:
-        seq = replay_motion(model, ends, model_tips=floor.tips, bends=floor.bends,
-                            **options).simulation.sequence
-    return seq.head(frames), tip_floor(model, seq.truth_tips[:frames])
+    _, seq, _, floor = fast_stretch_replay(frames, exact)
+    return seq, floor
 
 
 def test_expected_share_hand_computed() -> None:

@@ -10,52 +10,33 @@ model-exact motion, a small model noise must give the exact batch's answer.
 from __future__ import annotations
 
 import math
-from functools import cache
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import fast_stretch_replay
 from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from apcc_graph.calibration.backbone_fit import fit_backbone
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.pose_batch import forward_tips, pose_solve
-from apcc_graph.evaluation.tip_floor import TipFloor, tip_errors, tip_floor
+from apcc_graph.evaluation.tip_floor import TipFloor, tip_errors
 from apcc_graph.frontend.rotation_pairs import kabsch, pair_inliers
-from apcc_graph.io import load_robot
-from apcc_graph.io.backbone_poses import load_backbone_poses
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
-from apcc_graph.simulation.replay import measured_ends, replay_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL_SIGMA = (1e-3, math.radians(0.5))
 
 
-@cache
 def _replay(frames: int, exact: bool) -> tuple[Robot, Sequence, np.ndarray, TipFloor]:
     """The first ``frames`` frames of the fast stretch of the shipped slow recording, and
     the floor there (``exact``: the model's own tips at the floor's bends)."""
-    robot = load_robot(ROOT / "data" / "robots" / "real_tdcr.toml")
-    poses = load_backbone_poses(ROOT / "data" / "real_tdcr" / "slow_free_space"
-                                / "backbone_poses.csv")
-    cal = fit_backbone(poses, robot)
-    model = cal.robot(robot)
-    markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
-    ends = measured_ends(poses, model, markers)
-    options = dict(noise_px=1.0, outlier_fraction=0.1, seed=0, stretch=1)
-    seq = replay_motion(model, ends, **options).simulation.sequence
-    floor = tip_floor(model, seq.truth_tips)
-    if exact:
-        seq = replay_motion(model, ends, model_tips=floor.tips, bends=floor.bends,
-                            **options).simulation.sequence
-    truth = seq.truth_tips[:frames]
-    return model, seq.head(frames), truth, tip_floor(model, truth)
+    return fast_stretch_replay(frames, exact)
 
 
 def _tip_rms(model: Robot, thetas: np.ndarray, psis: np.ndarray, truth: np.ndarray
