@@ -864,3 +864,46 @@ def test_smoother_equals_the_batch_on_a_sequence_shorter_than_the_lag(robot: Rob
     assert out["smoother"].recoveries == 0
     # Measured: 0.0057 deg apart; the batch's RMS error is 0.030-0.054 deg per segment.
     assert difference < 0.3 * error, (difference, error)
+
+
+def _cut_frames(live: LiveTracks, ids: list[int], frames: int, window: int) -> dict[int, int]:
+    """Feed ``ids`` seen in every frame, the window ``window`` frames long; track id -> the
+    frame at which its first piece was cut (its first frame then about to leave, or earlier)."""
+    cut: dict[int, int] = {}
+    for f in range(frames):
+        out = live.take_due(f, {0: np.array(ids)}, leaving_before=max(f - window, 0),
+                            window=window)
+        for _, _, tid in committed(out[0]) if 0 in out else []:
+            cut.setdefault(tid, f)
+        live.add(f, 0, *rows_of(ids, f))
+    return cut
+
+
+def test_tracks_born_together_are_cut_at_staggered_frames_but_only_with_stagger() -> None:
+    ids = list(range(40))
+    together = _cut_frames(LiveTracks((0,), max_frames=100, min_rows=2), ids, 40, 20)
+    # without stagger every piece is cut when its first frame, 0, leaves: all together
+    assert set(together.values()) == {21}
+    staggered = _cut_frames(LiveTracks((0,), max_frames=100, min_rows=2, stagger=True), ids,
+                            40, 20)
+    assert len(staggered) == 40
+    # each cut within the last half window before frame 0 leaves, spread over it
+    assert min(staggered.values()) >= 21 - 10 and max(staggered.values()) <= 21
+    assert len(set(staggered.values())) >= 6
+    # the continuations are born apart: no cohort, so the next cuts stay spread
+    assert max(np.bincount(list(staggered.values()))) <= 0.25 * 40
+
+
+def test_stagger_leaves_pieces_born_apart_whole() -> None:
+    live = LiveTracks((0,), max_frames=100, min_rows=2, stagger=True)
+    cut: dict[int, int] = {}
+    born = {tid: tid for tid in range(12)}  # track t first seen in frame t: no cohort
+    for f in range(40):
+        seen = [t for t, b in born.items() if b <= f]
+        out = live.take_due(f, {0: np.array(seen)}, leaving_before=max(f - 20, 0),
+                            window=20)
+        for _, _, tid in committed(out[0]) if 0 in out else []:
+            cut.setdefault(tid, f)
+        live.add(f, 0, *rows_of(seen, f))
+    # each piece is cut exactly when its first frame is about to leave the window
+    assert cut == {tid: tid + 21 for tid in range(12) if tid + 21 < 40}

@@ -9,7 +9,12 @@ observed and committed, all its observations at once, when one of these happens:
 - its first frame is about to leave the smoother's window (a piece of a track that outlives the
   window: the rest of the track starts a new piece with its own point, or, with
   :meth:`LiveTracks.take_continuing`, the estimator keeps the track as a landmark);
-- it reached ``max_frames`` frames.
+- it reached ``max_frames`` frames;
+- with ``stagger``, it belongs to a cohort (a quarter or more of its camera's live pieces born
+  in the same frame: the camera's first frame, a new scene) and is longer than the window less
+  its own share of half a window: otherwise a cohort is cut together, every window, and the
+  frame after each cut has no known point but the landmarks (on a real robot's replayed motion
+  the smoother's window was dragged 20 degrees off after such a cut).
 
 An ended piece may be held back (still live) until the estimator commits a batch of them
 (``commit_ended=False`` in :meth:`LiveTracks.take_due`): fewer, larger committed factors, each
@@ -32,6 +37,11 @@ import numpy as np
 
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray, IntArray
+
+
+COHORT = 0.25
+"""With ``stagger``, live pieces sharing a first frame with at least this share of their
+camera's live pieces are cut early, each by its own share of half a window."""
 
 
 @dataclass
@@ -66,11 +76,30 @@ class LiveTracks:
         min_rows: shortest piece worth committing.
     """
 
-    def __init__(self, cameras: tuple[int, ...], max_frames: int, min_rows: int = 2) -> None:
+    def __init__(self, cameras: tuple[int, ...], max_frames: int, min_rows: int = 2,
+                 stagger: bool = False) -> None:
         self._cams = {c: _Camera() for c in cameras}
         self.max_frames = int(max_frames)
         self.min_rows = int(min_rows)
+        self.stagger = bool(stagger)
         self._next_piece = 0
+
+    def _early(self, piece: int, window: int) -> int:
+        """How many frames before its first frame leaves a window of ``window`` frames a
+        piece of a cohort is cut (with ``stagger``): a fixed share of up to half the window
+        per piece, so that pieces born together are not all cut together again."""
+        share = ((piece * 2654435761) % 2**32) / 2**32  # Knuth's multiplicative hash
+        return int(share * (window // 2))
+
+    @staticmethod
+    def _cohorts(state: _Camera) -> set[int]:
+        """The first frames shared by at least :data:`COHORT` of a camera's live pieces:
+        pieces born together (a camera's first frame, a new scene after a blackout or a gap)
+        that would otherwise be cut together, every window, leaving the frame after each cut
+        with no known point."""
+        firsts, counts = np.unique(np.fromiter(state.first.values(), dtype=np.int64,
+                                               count=len(state.first)), return_counts=True)
+        return set(firsts[counts >= max(COHORT * len(state.first), 2.0)].tolist())
 
     def add(self, frame: int, cam: int, ids: IntArray, xy: FloatArray, whiten: FloatArray,
             weights: FloatArray | None = None) -> None:
@@ -102,7 +131,8 @@ class LiveTracks:
         return out
 
     def take_due(self, frame: int, seen: dict[int, IntArray], leaving_before: int,
-                 commit_ended: bool = True) -> dict[int, TrackObservations]:
+                 commit_ended: bool = True, window: int | None = None
+                 ) -> dict[int, TrackObservations]:
         """Commit the pieces that are due before frame ``frame``'s observations are added.
 
         Args:
@@ -111,6 +141,9 @@ class LiveTracks:
             leaving_before: frames before this one leave the window in this update.
             commit_ended: commit the pieces whose tracks ended (now or held back since);
                 ``False`` holds them, live, for a later call.
+            window: the window's length in frames once full (``None`` before it is known):
+                with ``stagger``, a piece of a cohort (:meth:`_cohorts`) is cut once it is
+                longer than the window less its own share of half of it.
 
         Returns:
             camera -> the committed observations (pieces with at least ``min_rows`` rows;
@@ -121,6 +154,7 @@ class LiveTracks:
             blind = cam not in seen or len(seen[cam]) == 0
             now = set() if blind else set(seen[cam].tolist())
             due = set()
+            cohorts = self._cohorts(state) if self.stagger and window else set()
             for tid, piece in list(state.piece_of.items()):
                 length = frame - state.first[piece]
                 # A camera that saw nothing at all (a dropped frame) ends no track: its
@@ -129,7 +163,9 @@ class LiveTracks:
                 if ended:
                     state.ended.add(piece)
                     del state.piece_of[tid]
-                elif state.first[piece] < leaving_before or length >= self.max_frames:
+                elif (state.first[piece] < leaving_before or length >= self.max_frames
+                      or (state.first[piece] in cohorts and window is not None
+                          and length > window - self._early(piece, window))):
                     due.add(piece)
                     del state.piece_of[tid]
             for piece in list(state.ended):

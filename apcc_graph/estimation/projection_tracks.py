@@ -82,7 +82,8 @@ class ProjectionTracks:
 
     def _new_live(self) -> LiveTracks:
         max_frames = self.options.max_track_frames or 10**9
-        return LiveTracks(self.robot.camera_segments, max_frames, self.options.min_track_rows)
+        return LiveTracks(self.robot.camera_segments, max_frames, self.options.min_track_rows,
+                          stagger=self.settings.stagger_cuts)
 
     def reset(self, keep: int | None = None) -> None:
         """Forget every live piece (after the smoother restarted); the observations of frame

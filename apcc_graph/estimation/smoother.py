@@ -119,6 +119,7 @@ class FixedLagSmoother(Restarts):
         self._previous_base: FloatArray | None = None
         self._rng = np.random.default_rng(0)
         self._live_indices: list[int] = []
+        self._full_window: int | None = None  # frames in a full window, once one left
         self._tracked = False  # whether any frame had tracks yet
         self._reacquiring: Reacquisition | None = None
         self._first: FirstFrames | None = FirstFrames(  # for the start search, if need be
@@ -234,7 +235,10 @@ class FixedLagSmoother(Restarts):
                 first, last = int(obs.frames.min()), int(obs.frames.max())
                 tracks.count(*self._landmarks.promote(add, cam, obs, ids,
                                                       tracks.span(first, last), t))
-        due = tracks.live.take_due(f, seen, first_kept, f % self.settings.commit_every == 0)
+        if leaving:  # the window is full: its length in frames, for the staggered cuts
+            self._full_window = f - first_kept
+        due = tracks.live.take_due(f, seen, first_kept, f % self.settings.commit_every == 0,
+                                   window=self._full_window)
         for cam, obs in due.items():
             tracks.commit(add.graph, cam, obs)
         self._retire(leaving)

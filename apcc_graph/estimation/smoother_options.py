@@ -96,6 +96,11 @@ class SmootherOptions:
         factorization: how iSAM2 factors the window's linear system: ``"CHOLESKY"`` (of the
             normal equations) or ``"QR"`` (of the whitened Jacobians, which does not square
             their condition number; docs/estimation.md, "The fixed-lag smoother").
+        stagger_cuts: a track that outlives the window and is not a landmark is cut (the rest
+            a new piece with its own point) up to half a window before its first frame would
+            leave, at a share fixed per piece, so that tracks born together (all of them, when
+            a camera starts or sees a new scene) are not all cut together, every lag, leaving a
+            frame with no known point; ``False`` cuts each when its first frame leaves.
         misfit_seconds: the residual test of the final frames, in blocks of this many seconds
             (:mod:`~apcc_graph.estimation.fit_monitor`; a failing block warns); ``None`` skips
             it (``apcc_graph.estimate`` tests the whole recording instead).
@@ -118,6 +123,7 @@ class SmootherOptions:
     still_chi2: float = 18.4
     factorization: str = "CHOLESKY"
     misfit_seconds: float | None = 2.0
+    stagger_cuts: bool = True
 
     def __post_init__(self) -> None:
         _coerce(self, {"lag": float, "uncertainty": bool, "relinearize_threshold": float,
@@ -125,6 +131,7 @@ class SmootherOptions:
                        "front_end_rows": int,
                        "point_iterations": int, "commit_every": int, "landmarks": bool,
                        "landmark_sigma": float, "pose_sigma": float, "max_landmarks": int,
+                       "stagger_cuts": bool,
                        "still_chi2": float})
         if not (math.isfinite(self.lag) and self.lag > 0.0):
             raise ValueError(f"{type(self).__name__}.lag = {self.lag!r}: expected a positive "
