@@ -38,7 +38,6 @@ import numpy as np
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray, IntArray
 
-
 COHORT = 0.25
 """With ``stagger``, live pieces sharing a first frame with at least this share of their
 camera's live pieces are cut early, each by its own share of half a window."""
