@@ -19,7 +19,8 @@ the graph: :mod:`apcc_graph.estimation.stillness`); gtsam's indeterminate-system
 (caught; the smoother restarts from its last estimate with the start prior at that estimate);
 tracks that return after a blackout (:mod:`apcc_graph.estimation.blackout`); a start that
 contradicts the first second's images (replaced by the unknown-start search's answer:
-:mod:`apcc_graph.estimation.start_check`)."""
+:mod:`apcc_graph.estimation.start_check`); a model the images contradict (every 2 s of final
+frames is tested: :mod:`apcc_graph.estimation.fit_monitor`)."""
 
 from __future__ import annotations
 
@@ -183,9 +184,9 @@ class FixedLagSmoother(Restarts):
         window, still = self._window, self._still
         f = window.count  # the graph frame it becomes, unless the robot stands still
         t = check_timestamp(still.count, observations.timestamp, still.last_time)
-        if self._monitor is not None:
-            self._monitor.observe(still.count, observations)
         rows = frame_rows(self.robot, still.count, observations, self.options.threshold_px)
+        if self._monitor is not None:  # checked: every camera it names exists
+            self._monitor.observe(still.count, observations)
         base = (None if observations.world_T_base is None
                 else np.asarray(observations.world_T_base, dtype=float))
         if still.hold(rows, base, f, t, window.inside(f - 1)):
