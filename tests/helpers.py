@@ -30,16 +30,13 @@ def factor_hessian(factor: gtsam.NonlinearFactor, values: gtsam.Values
 
 
 @cache
-def fast_stretch_replay(frames: int, exact: bool):  # -> (Robot, Sequence, truth tips, TipFloor)
-    """The first ``frames`` frames of the fast stretch of the shipped slow real-robot recording
-    (cameras on the measured segment ends, 1 px, 10% outliers; ``exact``: on the calibrated
-    model's tips at the floor's bends instead), with the calibrated model, the measured tips
-    and the floor over those frames."""
+def slow_recording_calibrated():  # -> (calibrated Robot, MeasuredEnds)
+    """The shipped slow real-robot recording's calibrated model and measured segment ends
+    (the calibration takes seconds: computed once per test process)."""
     from apcc_graph.calibration.backbone_fit import fit_backbone
-    from apcc_graph.evaluation.tip_floor import tip_floor
     from apcc_graph.io import load_robot
     from apcc_graph.io.backbone_poses import load_backbone_poses
-    from apcc_graph.simulation.replay import measured_ends, replay_motion
+    from apcc_graph.simulation.replay import measured_ends
 
     robot = load_robot(ROOT / "data" / "robots" / "real_tdcr.toml")
     poses = load_backbone_poses(ROOT / "data" / "real_tdcr" / "slow_free_space"
@@ -47,7 +44,19 @@ def fast_stretch_replay(frames: int, exact: bool):  # -> (Robot, Sequence, truth
     cal = fit_backbone(poses, robot)
     model = cal.robot(robot)
     markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
-    ends = measured_ends(poses, model, markers)
+    return model, measured_ends(poses, model, markers)
+
+
+@cache
+def fast_stretch_replay(frames: int, exact: bool):  # -> (Robot, Sequence, truth tips, TipFloor)
+    """The first ``frames`` frames of the fast stretch of the shipped slow real-robot recording
+    (cameras on the measured segment ends, 1 px, 10% outliers; ``exact``: on the calibrated
+    model's tips at the floor's bends instead), with the calibrated model, the measured tips
+    and the floor over those frames."""
+    from apcc_graph.evaluation.tip_floor import tip_floor
+    from apcc_graph.simulation.replay import replay_motion
+
+    model, ends = slow_recording_calibrated()
     options = dict(noise_px=1.0, outlier_fraction=0.1, seed=0, stretch=1)
     seq = replay_motion(model, ends, **options).simulation.sequence
     floor = tip_floor(model, seq.truth_tips)

@@ -24,7 +24,12 @@ from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.pose_batch import forward_tips, pose_solve
 from apcc_graph.evaluation.tip_floor import TipFloor, tip_errors
-from apcc_graph.frontend.rotation_pairs import kabsch, pair_inliers
+from apcc_graph.frontend.rotation_pairs import (
+    draw_pairs,
+    kabsch,
+    pair_inliers,
+    relative_rotation,
+)
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
@@ -147,6 +152,38 @@ def test_pair_inliers_find_the_outliers_whatever_the_turn() -> None:
         # test at the solution decides it; every row of a clean track is kept.
         clean = ~np.isin(tracks, tracks[bad])
         assert keep[clean].all()
+
+
+def test_batched_pair_inliers_are_the_per_pair_ransac_with_the_same_samples() -> None:
+    """All frame pairs' RANSAC at once decides as the one-pair reference does, group by group,
+    on a stream with tracks that start and end, pairs too small to decide, and outliers."""
+    rng = np.random.default_rng(11)
+    frames, tracks, bear = [], [], []
+    for t in range(300):
+        first = int(rng.integers(0, 40))
+        n = int(rng.integers(1, 12))
+        frames.append(np.arange(first, first + n))
+        tracks.append(np.full(n, t))
+        point = rng.normal(size=3) + np.array([0.0, 0.0, 4.0])
+        turns = Rotation.from_rotvec(np.outer(np.arange(first, first + n), [0.0, 0.03, 0.01]))
+        rays = turns.inv().apply(point)
+        rays[rng.random(n) < 0.15] += rng.normal(scale=0.3, size=3)
+        bear.append(rays)
+    frames, tracks, bear = (np.concatenate(frames), np.concatenate(tracks),
+                            np.concatenate(bear))
+    keep = pair_inliers(frames, tracks, bear, threshold=0.02, seed=5)
+    unit = bear / np.linalg.norm(bear, axis=1, keepdims=True)
+    pair = np.flatnonzero((tracks[1:] == tracks[:-1]) & (frames[1:] == frames[:-1] + 1))
+    pair = pair[np.argsort(frames[pair + 1], kind="stable")]
+    later = frames[pair + 1]
+    groups = np.split(pair, np.flatnonzero(np.diff(later)) + 1)
+    picks = draw_pairs(np.array([len(g) for g in groups]), np.random.default_rng(5))
+    reference = np.zeros(len(frames), dtype=bool)
+    for group, pick in zip(groups, picks, strict=True):
+        _, agree = relative_rotation(unit[group], unit[group + 1], 0.02, pick=pick)
+        reference[group[agree]] = reference[group[agree] + 1] = True
+    assert 0.5 < keep.mean() < 0.95
+    assert np.array_equal(keep, reference)
 
 
 def test_pair_inliers_are_reproducible_and_refuse_unsorted_rows() -> None:

@@ -42,9 +42,9 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.stats
 from numpy.typing import NDArray
 
+from apcc_graph.estimation.chi_square import FALSE_ALARM, chi2_limit
 from apcc_graph.estimation.graph import camera_chain, observed_cameras
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.factors.camera_chain import CameraChain
@@ -188,7 +188,7 @@ class StartFit:
 
     moved: FloatArray
     sigma0: float
-    false_alarm: float = 1e-4
+    false_alarm: float = FALSE_ALARM
 
     @property
     def chi2(self) -> float:
@@ -199,7 +199,7 @@ class StartFit:
     def limit(self) -> float:
         """The chi-square value with ``dof`` degrees of freedom exceeded with probability
         ``false_alarm``."""
-        return float(scipy.stats.chi2.isf(self.false_alarm, len(self.moved)))
+        return chi2_limit(len(self.moved), self.false_alarm)
 
     @property
     def contradicted(self) -> bool:

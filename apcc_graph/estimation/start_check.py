@@ -28,16 +28,13 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
-import scipy.stats
 
 from apcc_graph.estimation.blackout import Reacquisition
+from apcc_graph.estimation.chi_square import FALSE_ALARM, chi2_limit
 from apcc_graph.estimation.options import Robustness
 from apcc_graph.estimation.start_search import find_start
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.sequence import FrameObservations
-
-FALSE_ALARM = 1e-4
-"""Probability of warning on a start that agrees with the images."""
 
 
 class StartWarning(UserWarning):
@@ -78,7 +75,7 @@ def check_start(theta0: FloatArray, sigma0: float, estimate: FloatArray,
     except (RuntimeError, IndexError, ValueError):
         return False
     chi2 = start_chi2(theta0, sigma0, estimate, cov)
-    limit = float(scipy.stats.chi2.isf(FALSE_ALARM, len(theta0)))
+    limit = chi2_limit(len(theta0))
     if not chi2 > limit:
         return False
     moved = ", ".join(f"{v:+.2f}" for v in np.degrees(np.asarray(estimate) - theta0))

@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.model.arrays import FloatArray
 
-__all__ = ["kabsch", "pair_inliers", "relative_rotation"]
+__all__ = ["draw_pairs", "kabsch", "kabsch_of", "pair_inliers", "relative_rotation"]
 
 
 def kabsch(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -37,7 +37,12 @@ def kabsch(a: FloatArray, b: FloatArray) -> FloatArray:
     Returns:
         ``(..., 3, 3)`` proper rotations.
     """
-    H = np.swapaxes(b, -1, -2) @ a
+    return kabsch_of(np.swapaxes(b, -1, -2) @ a)
+
+
+def kabsch_of(H: FloatArray) -> FloatArray:
+    """The rotations of :func:`kabsch` from the correlations ``H = sum_i b_i a_i^T``
+    (``(..., 3, 3)``), so that sums over ragged groups can be formed first."""
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
     D = np.zeros(d.shape + (3, 3))
@@ -46,16 +51,33 @@ def kabsch(a: FloatArray, b: FloatArray) -> FloatArray:
     return np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
 
 
+def draw_pairs(sizes: NDArray[np.int64], rng: np.random.Generator,
+               iterations: int = 64) -> NDArray[np.int64]:
+    """RANSAC's minimal samples: ``(G, iterations, 2)`` two distinct indices into each of
+    ``G`` groups of ``sizes`` pairs (zeros for a group of fewer than two)."""
+    sizes = np.asarray(sizes, dtype=np.int64)
+    u = rng.random((2, len(sizes), iterations))
+    n = sizes[:, None]
+    first = np.minimum((u[0] * n).astype(np.int64), n - 1)
+    offset = 1 + np.minimum((u[1] * (n - 1)).astype(np.int64), n - 2)
+    pick = np.stack([first, (first + offset) % np.maximum(n, 1)], axis=-1)
+    return np.where((n >= 2)[..., None], pick, 0)
+
+
 def relative_rotation(a: FloatArray, b: FloatArray, threshold: float,
-                      rng: np.random.Generator, iterations: int = 64
+                      rng: np.random.Generator | None = None, iterations: int = 64,
+                      pick: NDArray[np.int64] | None = None
                       ) -> tuple[FloatArray | None, NDArray[np.bool_]]:
-    """The rotation ``R`` with ``a_i ~ R b_i`` for most pairs, by 2-point RANSAC.
+    """The rotation ``R`` with ``a_i ~ R b_i`` for most pairs, by 2-point RANSAC: one group,
+    the reference of :func:`pair_inliers`' batched decisions.
 
     Args:
         a, b: ``(n, 3)`` unit bearings of the same points in two frames.
         threshold: a pair agrees when ``|a_i - R b_i| < threshold`` (radians, small angles).
-        rng: the sampling's random generator.
+        rng: the sampling's random generator (when ``pick`` is not given).
         iterations: hypotheses drawn.
+        pick: ``(iterations, 2)`` the hypotheses' samples (:func:`draw_pairs`), instead of
+            drawing them.
 
     Returns:
         ``R`` (``None`` with fewer than 3 pairs) and the ``(n,)`` inlier mask.
@@ -63,9 +85,10 @@ def relative_rotation(a: FloatArray, b: FloatArray, threshold: float,
     n = len(a)
     if n < 3:
         return None, np.zeros(n, dtype=bool)
-    first = rng.integers(0, n, iterations)
-    second = (first + rng.integers(1, n, iterations)) % n
-    pick = np.stack([first, second], axis=1)
+    if pick is None:
+        if rng is None:
+            raise ValueError("relative_rotation needs rng or pick")
+        pick = draw_pairs(np.array([n]), rng, iterations)[0]
     R = kabsch(a[pick], b[pick])
     err = np.linalg.norm(a[None] - b[None] @ np.swapaxes(R, -1, -2), axis=-1)
     inliers = err < threshold
@@ -80,8 +103,13 @@ def relative_rotation(a: FloatArray, b: FloatArray, threshold: float,
 
 
 def pair_inliers(frames: ArrayLike, tracks: ArrayLike, bearings: ArrayLike,
-                 threshold: float = 0.02, seed: int = 0) -> NDArray[np.bool_]:
+                 threshold: float = 0.02, seed: int = 0,
+                 iterations: int = 64) -> NDArray[np.bool_]:
     """One camera's observations that agree with a neighbouring frame (module docstring).
+
+    Every frame pair's RANSAC runs at once: the hypotheses of all pairs are scored in one pass
+    per hypothesis index, and the refits sum each pair's correlations before one batched SVD.
+    The decisions are :func:`relative_rotation`'s on each pair with the same samples.
 
     Args:
         frames: ``(N,)`` frame of each observation.
@@ -89,6 +117,7 @@ def pair_inliers(frames: ArrayLike, tracks: ArrayLike, bearings: ArrayLike,
         bearings: ``(N, 3)`` bearing of each observation in the camera frame (any length).
         threshold: the agreement threshold (radians of bearing).
         seed: the sampling's seed (the decisions are the same bytes for the same seed).
+        iterations: hypotheses drawn per frame pair.
 
     Returns:
         ``(N,)`` inlier mask.
@@ -106,14 +135,50 @@ def pair_inliers(frames: ArrayLike, tracks: ArrayLike, bearings: ArrayLike,
     if np.any(order != np.arange(len(order))):
         raise ValueError("rows must be sorted by (track, frame)")
     bear = bear / np.linalg.norm(bear, axis=1, keepdims=True)
-    rng = np.random.default_rng(seed)
+    keep = np.zeros(len(frames), dtype=bool)
     pair = np.flatnonzero((tracks[1:] == tracks[:-1]) & (frames[1:] == frames[:-1] + 1))
+    if not len(pair):
+        return keep
     later = frames[pair + 1]
     order = np.argsort(later, kind="stable")
     pair, later = pair[order], later[order]
-    keep = np.zeros(len(frames), dtype=bool)
-    for group in np.split(pair, np.flatnonzero(np.diff(later)) + 1):
-        _, agree = relative_rotation(bear[group], bear[group + 1], threshold, rng)
-        keep[group[agree]] = True
-        keep[group[agree] + 1] = True
+    starts = np.flatnonzero(np.r_[True, np.diff(later) != 0])
+    sizes = np.diff(np.r_[starts, len(pair)])
+    group = np.repeat(np.arange(len(sizes)), sizes)
+    agree = _consensus(bear[pair], bear[pair + 1], group, starts, sizes,
+                       draw_pairs(sizes, np.random.default_rng(seed), iterations), threshold)
+    keep[pair[agree]] = True
+    keep[pair[agree] + 1] = True
     return keep
+
+
+def _consensus(a: FloatArray, b: FloatArray, group: NDArray[np.int64],
+               starts: NDArray[np.int64], sizes: NDArray[np.int64], pick: NDArray[np.int64],
+               threshold: float) -> NDArray[np.bool_]:
+    """:func:`relative_rotation`'s inlier masks of all groups at once: ``a, b`` the ``(P, 3)``
+    unit pairs sorted by group, ``group`` each pair's group, ``starts`` and ``sizes`` each
+    group's rows, ``pick`` ``(G, iterations, 2)`` the samples within each group.
+
+    For unit vectors ``|a - R b|^2 = 2 - 2 vec(R) . vec(a b^T)``: with each group's ``a b^T``
+    laid out in a zero-padded ``(G, n_max, 9)`` block, scoring every hypothesis of every group
+    is one batched matrix product."""
+    G = len(sizes)
+    at = np.arange(len(group)) - starts[group]
+    ab = np.zeros((G, int(sizes.max()), 9))
+    ab[group, at] = (a[:, :, None] * b[:, None, :]).reshape(-1, 9)
+    cut = 1.0 - 0.5 * threshold**2  # |a - R b| < threshold  <=>  vec(R) . vec(a b^T) > cut
+    rows = starts[:, None, None] + pick
+    R = kabsch(a[rows], b[rows]).reshape(G, -1, 9)  # (G, iterations, 9)
+    best = np.argmax(np.sum(ab @ np.swapaxes(R, 1, 2) > cut, axis=1), axis=1)
+    Rg = R[np.arange(G), best]
+    alive = sizes >= 3
+    outer = b[:, :, None] * a[:, None, :]  # each pair's b a^T, whose sums refit (kabsch_of)
+    for step in range(3):  # score the winner, refit to its inliers, refit once more
+        inlier = alive[group] & (np.einsum("pk,pk->p", ab[group, at], Rg[group]) > cut)
+        if step == 2:
+            return inlier
+        alive &= np.bincount(group, weights=inlier, minlength=G) >= 2
+        inlier &= alive[group]
+        H = np.add.reduceat(outer * inlier[:, None, None], starts, axis=0)
+        Rg = np.where(alive[:, None, None], kabsch_of(H), np.eye(3)).reshape(G, 9)
+    raise AssertionError("unreachable")
