@@ -12,7 +12,12 @@ import pytest
 from helpers import random_pose
 
 from apcc_graph import Robot, Segment, TipCamera
-from apcc_graph.evaluation.sequence_bound import SequenceBound, fisher_information, sequence_bound
+from apcc_graph.evaluation.sequence_bound import (
+    SequenceBound,
+    fisher_information,
+    lag_bound,
+    sequence_bound,
+)
 from apcc_graph.model.sequence import Sequence, Tracks
 from apcc_graph.simulation.simulator import Simulation, simulate
 
@@ -190,6 +195,26 @@ def test_a_frame_no_camera_saw_is_undetermined(robot: Robot) -> None:
     index = (others[:, None] * 3 + np.arange(3)).ravel()
     want = np.sqrt(np.diag(np.linalg.inv(info[np.ix_(index, index)]))).reshape(9, 3)
     np.testing.assert_allclose(bound.sigmas[others], want, rtol=1e-6)
+
+
+def test_the_lag_bound_past_a_frame_no_camera_saw(robot: Robot) -> None:
+    """A blind frame inside the lag leaves every other frame its bound (it was inf for all of
+    them while the blind frame was within reach): each sampled frame's is the inverse of the
+    information of the frames up to its lag, the blind one left out."""
+    sim = simulate(robot, 12, noise_px=1.0, seed=6, scene="room", n_points=400)
+    blind, lag = 5, 3
+    cut = keep_rows(sim, {c: t.frames != blind for c, t in sim.sequence.tracks.items()})
+    bound = lag_bound(cut, 1.0, lag, step=1)
+    assert np.all(np.isinf(bound.sigmas[blind]))
+    for f in np.delete(np.arange(12), blind):
+        last = min(f + lag, 11)
+        info = fisher_information(cut, 1.0, last_frame=last)
+        seen = [g for g in range(last + 1) if g != blind]
+        index = (np.array(seen)[:, None] * 3 + np.arange(3)).ravel()
+        inverse = np.linalg.inv(info[np.ix_(index, index)])
+        at = seen.index(f)
+        want = np.sqrt(np.diag(inverse)[3 * at:3 * at + 3])
+        np.testing.assert_allclose(bound.sigmas[f], want, rtol=1e-6, err_msg=str(f))
 
 
 # -------------------------------------------------------------------------------- outliers

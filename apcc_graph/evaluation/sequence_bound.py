@@ -302,7 +302,10 @@ def lag_bound(simulation: Simulation, noise_px: float, lag_frames: int,
         try:
             U = scipy.linalg.cholesky(info, lower=False, check_finite=False)
         except np.linalg.LinAlgError:
-            continue  # undetermined at this cut: inf
+            # some frame up to this cut is undetermined (no camera saw it: a blackout); the
+            # others keep their bound, the undetermined directions are inf
+            sigmas[i] = _bound_sigmas(info)[f * S:(f + 1) * S]
+            continue
         # The f block of info^-1 = U^-1 U^-T: rows f S.. of U^-1 come from solving U^T x = e.
         unit = np.zeros((len(info), S))
         unit[f * S + np.arange(S), np.arange(S)] = 1.0
