@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass
 
 import numpy as np
@@ -277,7 +278,8 @@ class LagBound:
 
 def lag_bound(simulation: Simulation, noise_px: float, lag_frames: int,
               theta0_sigma: float | None = math.radians(0.1), step: int = 10,
-              max_track_frames: int | None = None) -> LagBound:
+              max_track_frames: int | None = None,
+              frames: SequenceOf[int] | None = None) -> LagBound:
     """The bound of a fixed-lag smoother that lets a frame go ``lag_frames`` frames later.
 
     Args:
@@ -285,15 +287,23 @@ def lag_bound(simulation: Simulation, noise_px: float, lag_frames: int,
         lag_frames: the smoother's lag in frames (lag in seconds times the frame rate).
         step: sample every ``step``-th frame (each sample builds and factors one information
             matrix, so the cost is that of :func:`sequence_bound` per sample).
+        frames: sample these frames instead (ascending, within the recording).
 
     Returns:
-        The bound at frames ``0, step, 2 step, ...``.
+        The bound at frames ``0, step, 2 step, ...`` (or ``frames``).
     """
     if lag_frames < 0 or step < 1:
         raise ValueError(f"lag_frames = {lag_frames!r}, step = {step!r}: expected "
                          "lag_frames >= 0 and step >= 1")
     n_frames, S = simulation.sequence.n_frames, simulation.sequence.n_segments
-    frames = np.arange(0, n_frames, step, dtype=np.int64)
+    if frames is None:
+        frames = np.arange(0, n_frames, step, dtype=np.int64)
+    else:
+        frames = np.asarray(frames, dtype=np.int64)
+        if frames.ndim != 1 or np.any(np.diff(frames) <= 0) or (
+                len(frames) and not 0 <= frames[0] <= frames[-1] < n_frames):
+            raise ValueError(f"frames = {frames.tolist()!r}: expected ascending frames in "
+                             f"0 .. {n_frames - 1}")
     sigmas = np.full((len(frames), S), np.inf)
     for i, f in enumerate(frames.tolist()):
         last = min(f + lag_frames, n_frames - 1)
