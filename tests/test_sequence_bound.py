@@ -215,6 +215,12 @@ def test_the_lag_bound_past_a_frame_no_camera_saw(robot: Robot) -> None:
         at = seen.index(f)
         want = np.sqrt(np.diag(inverse)[3 * at:3 * at + 3])
         np.testing.assert_allclose(bound.sigmas[f], want, rtol=1e-6, err_msg=str(f))
+    picked = lag_bound(cut, 1.0, lag, frames=[3, blind, 8])
+    np.testing.assert_array_equal(picked.frames, [3, blind, 8])
+    np.testing.assert_allclose(picked.sigmas, bound.sigmas[[3, blind, 8]])
+    for bad in ([8, 3], [3, 3], [12], [-1, 2]):
+        with pytest.raises(ValueError, match=r"frames = .*expected ascending frames in 0 \.\. 11"):
+            lag_bound(cut, 1.0, lag, frames=bad)
 
 
 # -------------------------------------------------------------------------------- outliers

@@ -173,12 +173,14 @@ def _consensus(a: FloatArray, b: FloatArray, group: NDArray[np.int64],
     Rg = R[np.arange(G), best]
     alive = sizes >= 3
     outer = b[:, :, None] * a[:, None, :]  # each pair's b a^T, whose sums refit (kabsch_of)
-    for step in range(3):  # score the winner, refit to its inliers, refit once more
-        inlier = alive[group] & (np.einsum("pk,pk->p", ab[group, at], Rg[group]) > cut)
-        if step == 2:
-            return inlier
+
+    def agree() -> NDArray[np.bool_]:
+        return alive[group] & (np.einsum("pk,pk->p", ab[group, at], Rg[group]) > cut)
+
+    for _ in range(2):  # refit to the winner's inliers, then once more to the refit's
+        inlier = agree()
         alive &= np.bincount(group, weights=inlier, minlength=G) >= 2
         inlier &= alive[group]
         H = np.add.reduceat(outer * inlier[:, None, None], starts, axis=0)
         Rg = np.where(alive[:, None, None], kabsch_of(H), np.eye(3)).reshape(G, 9)
-    raise AssertionError("unreachable")
+    return agree()
