@@ -20,7 +20,13 @@ from hypothesis import strategies as st
 import apcc_graph
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.front_end import FramePairs, chained_guess
-from apcc_graph.estimation.initial_guess import FrameRows, frame_poses, predict, refine
+from apcc_graph.estimation.initial_guess import (
+    FrameRows,
+    frame_poses,
+    predict,
+    refine,
+    row_inliers,
+)
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import BatchOptions, GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
@@ -421,6 +427,26 @@ def test_refine_ignores_twenty_percent_random_pixels(pnp_sim: Simulation) -> Non
                  for r, bad in zip(rows, replaced, strict=True)]
     oracle = refine_planar(truth + OFFSET, pnp_sim.sequence.robot, true_rows, 3.5)
     np.testing.assert_allclose(guess.thetas, oracle.thetas, atol=1e-9, rtol=0)
+
+
+def test_rows_held_out_of_the_solve_are_still_judged_at_its_answer(pnp_sim: Simulation) -> None:
+    """The smoother solves a frame's initial guess without the rows the model-free gate closed,
+    then judges every row at the answer (``row_inliers``): a closed row a later frame reopens
+    must not enter unchecked."""
+    f = 8
+    truth = pnp_sim.sequence.thetas[f]
+    robot = pnp_sim.sequence.robot
+    rows, replaced = frame_rows(pnp_sim, f, noise_px=1.0, outlier_fraction=0.2, seed=3)
+    true_rows = [FrameRows(r.camera, r.points[~bad], r.xy[~bad], r.whiten[~bad])
+                 for r, bad in zip(rows, replaced, strict=True)]
+    guess = refine_planar(truth + OFFSET, robot, true_rows, 3.5)
+    flags = row_inliers(guess.thetas, robot, PLANAR(robot), None, rows, 3.5)
+    for got, bad in zip(flags, replaced, strict=True):
+        assert not got[bad].any() and np.mean(got[~bad]) > 0.98
+    # on the rows it solved with, the same decisions as refine's own
+    again = row_inliers(guess.thetas, robot, PLANAR(robot), None, true_rows, 3.5)
+    assert all(np.array_equal(a, b) for a, b in zip(again, guess.row_inliers, strict=True))
+    assert row_inliers(guess.thetas, robot, PLANAR(robot), None, [], 3.5) == ()
 
 
 def test_refine_keeps_the_prediction_without_enough_known_points(pnp_sim: Simulation) -> None:

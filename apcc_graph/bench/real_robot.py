@@ -53,9 +53,12 @@ from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.replay import measured_ends, motion_stretches, replay_motion
 
 RECORDINGS = ("slow_free_space", "impulse_2")
-METHODS = ("chain", "batch", "noise", "smoother", "noise@floor", "smoother-qr")
-"""Every method the bench knows; ``smoother-qr`` (the smoother factoring its window by QR,
-``SmootherOptions(factorization="QR")``) is a peer, not in the default list."""
+PEERS = {"smoother-qr": SmootherOptions(factorization="QR"),
+         "smoother-gate": SmootherOptions(rotation_gate=0.02)}
+"""Smoother variants the bench can run beside the default: ``smoother-qr`` factors its window
+by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad)."""
+METHODS = ("chain", "batch", "noise", "smoother", "noise@floor", *PEERS)
+"""Every method the bench knows; the :data:`PEERS` are not in the default list."""
 MODEL_SIGMA = (1e-3, math.radians(0.5))
 """The benchmark's model noise (position m, rotation rad) for ``noise`` and ``noise@floor``."""
 MIN_STRETCH = 2.0
@@ -118,10 +121,10 @@ def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, n
                                                    theta0_sigma=start_sigma,
                                                    model_sigma=model_sigma))
     graph = GraphOptions(model_sigma=model_sigma) if method == "noise" else None
-    if method == "smoother-qr":
+    if method in PEERS:
         return estimate(seq, method="smoother", spatial=True, theta0=floor.thetas[0],
                         psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px,
-                        settings=SmootherOptions(factorization="QR"))
+                        settings=PEERS[method])
     return estimate(seq, method="batch" if method == "noise" else method, spatial=True,
                     theta0=floor.thetas[0], psi0=floor.psis[0], theta0_sigma=start_sigma,
                     noise_px=noise_px, graph=graph)

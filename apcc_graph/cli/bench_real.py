@@ -35,8 +35,9 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
     rb.add_argument("--recordings", default="slow_free_space,impulse_2",
                     help="recordings, comma-separated (default: %(default)s)")
     rb.add_argument("--methods", default="chain,batch,noise,smoother,noise@floor",
-                    help="estimators, comma-separated (default: %(default)s); smoother-qr, "
-                    "the smoother factoring its window by QR, is a peer to add")
+                    help="estimators, comma-separated (default: %(default)s); peers to add: "
+                    "smoother-qr (the smoother factoring its window by QR), smoother-gate "
+                    "(the smoother with the model-free outlier gate)")
     rb.add_argument("--noise-px", type=non_negative, default=1.0, help="pixel noise (default 1)")
     rb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction (default 0.1)")
     rb.add_argument("--start-sigma-deg", type=positive, default=2.0,

@@ -74,13 +74,14 @@ def warn_blackout(frame: int, timestamp: float, sigmas: FloatArray) -> None:
 
 def warn_pause(frame: int, timestamp: float, gap: float, sigma: float) -> None:
     """Say that ``frame`` (at ``timestamp`` seconds) came ``gap`` seconds after the previous
-    one, longer than the smoother's lag (``sigma``: the start prior of the re-acquisition,
-    radians)."""
+    one, with none of the tracks seen before it (``sigma``: the start prior of the
+    re-acquisition, radians)."""
     warnings.warn(f"frame {frame} ({timestamp:.3f} s): the recording had paused for {gap:.2f} s, "
-                  "longer than the smoother's lag; the robot may have moved anywhere meanwhile. "
-                  "The smoother re-acquires the angles from the tracks after the pause once they "
-                  f"span its lag (from the unknown-start search, else from the last estimate "
-                  f"with a sigma of {math.degrees(sigma):.2g} deg); until then they may be off",
+                  "and none of the tracks seen before came back; the robot may have moved "
+                  "anywhere meanwhile. The smoother re-acquires the angles from the tracks "
+                  "after the pause once they span its lag (from the unknown-start search, else "
+                  f"from the last estimate with a sigma of {math.degrees(sigma):.2g} deg); until "
+                  "then they may be off",
                   BlackoutWarning, stacklevel=4)
 
 

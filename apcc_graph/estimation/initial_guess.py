@@ -193,3 +193,16 @@ def refine(prediction: FloatArray, robot: Robot, bending: Bending,
     for r, flags in zip(rows, inliers, strict=True):
         out[r.camera] = int(flags.sum())
     return InitialGuess(thetas, out, True, tuple(inliers))
+
+
+def row_inliers(thetas: FloatArray, robot: Robot, bending: Bending,
+                world_T_base: FloatArray | None, rows: list[FrameRows],
+                threshold: float) -> tuple[NDArray[np.bool_], ...]:
+    """Each row's inlier flag (whitened residual norm below ``threshold``) at the frame vector
+    ``thetas``, against its known point: the decisions :func:`refine` returns, for rows it did
+    not solve with (those the model-free gate held out of the solve still get a residual
+    decision, so that a later agreement with a neighbour cannot admit them unchecked)."""
+    if not rows:
+        return ()
+    *_, inliers = _normal_equations(thetas, robot, bending, world_T_base, rows, None, threshold)
+    return tuple(inliers)

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.initial_guess import FrameRows
-from apcc_graph.estimation.robust import gnc_tls_weights
+from apcc_graph.estimation.robust import enough_rows, gnc_tls_weights
 from apcc_graph.factors.landmark import (
     camera_pose_factor,
     camera_pose_key,
@@ -132,14 +132,18 @@ class Landmarks:
         self._poses = {(g, c) for g, c in self._poses if g not in gone}
 
     def promote(self, add: Additions, cam: int, obs: TrackObservations,
-                tracks: Mapping[int, int], thetas: FloatArray, t: float) -> tuple[int, int]:
+                tracks: Mapping[int, int], thetas: FloatArray, t: float,
+                gate: FloatArray | None = None) -> tuple[int, int]:
         """Make landmarks of camera ``cam``'s pieces ``obs`` (ids are piece ids; ``tracks``
-        maps their track ids to them; ``thetas`` are the angles of their frames). Returns the
-        observations taken and how many of them were judged outliers."""
+        maps their track ids to them; ``thetas`` are the angles of their frames; ``gate``:
+        the model-free gate's weight per row, default 1). Returns the observations taken and
+        how many of them were judged outliers."""
         first, last = int(obs.frames.min()), int(obs.frames.max())
         chain = self.chain(cam, first, last)
-        norms, points = robust_residual_norms(obs, chain, thetas, first, np.ones(len(obs)))
-        weights = gnc_tls_weights(norms, self.inlier_sigmas, math.inf)
+        gate = np.ones(len(obs)) if gate is None else gate * enough_rows(gate, obs.tracks,
+                                                                         obs.starts, 2)
+        norms, points = robust_residual_norms(obs, chain, thetas, first, gate)
+        weights = gnc_tls_weights(norms, self.inlier_sigmas, math.inf) * gate
         outliers = int(np.sum(weights == 0.0))
         inliers = np.add.reduceat(weights > 0.0, obs.starts[:-1])
         keep = np.flatnonzero(inliers >= 2)

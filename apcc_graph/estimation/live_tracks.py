@@ -34,7 +34,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 
+from apcc_graph.estimation.rotation_gate import NOT_JUDGED, combine, gate_weights
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray, IntArray
 
@@ -53,6 +55,7 @@ class _FrameRows:
     xy: FloatArray  # (n, 2) normalised coordinates
     whiten: FloatArray  # (n, 2, 2)
     weights: FloatArray  # (n,) robust decisions (1 inlier, 0 outlier)
+    verdicts: NDArray[np.int8]  # (n,) the model-free gate's (estimation/rotation_gate.py)
 
 
 @dataclass
@@ -101,9 +104,11 @@ class LiveTracks:
         return set(firsts[counts >= max(COHORT * len(state.first), 2.0)].tolist())
 
     def add(self, frame: int, cam: int, ids: IntArray, xy: FloatArray, whiten: FloatArray,
-            weights: FloatArray | None = None) -> None:
+            weights: FloatArray | None = None,
+            verdicts: NDArray[np.int8] | None = None) -> None:
         """Record camera ``cam``'s observations of frame ``frame`` (after :meth:`take_due`),
-        with their first robust decisions (default: all inliers)."""
+        with their first robust decisions (default: all inliers) and the model-free gate's
+        verdicts (default: not judged; :meth:`judge` updates them)."""
         state = self._cams[cam]
         pieces = np.empty(len(ids), dtype=np.int64)
         for k, tid in enumerate(ids.tolist()):
@@ -116,18 +121,49 @@ class LiveTracks:
             state.last[piece] = frame
             pieces[k] = piece
         w = np.ones(len(ids)) if weights is None else np.asarray(weights, dtype=float)
-        state.rows.append(_FrameRows(frame, pieces, ids, xy, whiten, w))
+        v = (np.full(len(ids), NOT_JUDGED, dtype=np.int8) if verdicts is None
+             else np.asarray(verdicts, dtype=np.int8).copy())
+        state.rows.append(_FrameRows(frame, pieces, ids, xy, whiten, w, v))
 
-    def frame_rows(self, frame: int
-                   ) -> dict[int, tuple[IntArray, FloatArray, FloatArray, FloatArray]]:
-        """Camera -> the track ids, normalised coordinates, whitening and weights of its
-        observations in ``frame`` (cameras that saw it while it is still held)."""
+    def frame_rows(self, frame: int) -> dict[int, tuple[IntArray, FloatArray, FloatArray,
+                                                        FloatArray, NDArray[np.int8]]]:
+        """Camera -> the track ids, normalised coordinates, whitening, weights and gate
+        verdicts of its observations in ``frame`` (cameras that saw it while it is still
+        held)."""
         out = {}
         for cam, state in self._cams.items():
             for r in state.rows:
                 if r.frame == frame and len(r.ids):
-                    out[cam] = (r.ids.copy(), r.xy.copy(), r.whiten.copy(), r.weights.copy())
+                    out[cam] = (r.ids.copy(), r.xy.copy(), r.whiten.copy(), r.weights.copy(),
+                                r.verdicts.copy())
         return out
+
+    def judge(self, frame: int, cam: int, ids: IntArray, agree: NDArray[np.bool_]) -> None:
+        """A neighbouring frame's judgement of camera ``cam``'s observations of tracks ``ids``
+        in ``frame`` (those still held; :func:`~apcc_graph.estimation.rotation_gate.combine`).
+        """
+        agree = np.asarray(agree, dtype=bool)
+        for r in self._cams[cam].rows:
+            if r.frame == frame:
+                _, mine, theirs = np.intersect1d(r.ids, np.asarray(ids), assume_unique=True,
+                                                 return_indices=True)
+                r.verdicts[mine] = combine(r.verdicts[mine], agree[theirs])
+
+    def gates(self, obs: TrackObservations) -> FloatArray:
+        """The gate weights of the rows of ``obs`` (ids are piece ids, as :meth:`take_due`
+        and :meth:`live_rows` return them), looked up by (piece, frame) among the rows still
+        held (call before :meth:`drop_frames_before`); 1 for a row not found."""
+        state = self._cams[obs.camera]
+        if not state.rows:
+            return np.ones(len(obs))
+        keys = np.concatenate([(r.pieces << 32) | r.frame for r in state.rows])
+        verdicts = np.concatenate([r.verdicts for r in state.rows])
+        order = np.argsort(keys, kind="stable")
+        keys, verdicts = keys[order], verdicts[order]
+        want = (obs.ids[obs.tracks].astype(np.int64) << 32) | obs.frames.astype(np.int64)
+        at = np.minimum(np.searchsorted(keys, want), len(keys) - 1)
+        found = keys[at] == want
+        return np.where(found, gate_weights(verdicts[at]), 1.0)
 
     def take_due(self, frame: int, seen: dict[int, IntArray], leaving_before: int,
                  commit_ended: bool = True, window: int | None = None
@@ -239,7 +275,8 @@ class LiveTracks:
     def _gather(self, state: _Camera, due: set[int]
                 ) -> tuple[TrackObservations, FloatArray, IntArray] | None:
         """The rows of pieces ``due`` with at least ``min_rows`` rows: observations (ids are
-        piece ids), their weights, and each row's position in the concatenated buffer."""
+        piece ids), their weights (robust decisions times the gate's), and each row's
+        position in the concatenated buffer."""
         if not state.rows or not due:
             return None
         pieces = np.concatenate([r.pieces for r in state.rows])
@@ -254,7 +291,8 @@ class LiveTracks:
         index = index[order]
         xy = np.concatenate([r.xy for r in state.rows])[index]
         whiten = np.concatenate([r.whiten for r in state.rows])[index]
-        weights = np.concatenate([r.weights for r in state.rows])[index]
+        weights = np.concatenate([r.weights * gate_weights(r.verdicts)
+                                  for r in state.rows])[index]
         cam = next(c for c, s in self._cams.items() if s is state)
         obs = TrackObservations.build(cam, frames[order], pieces[index], xy, whiten)
         return obs, weights, index
@@ -296,7 +334,7 @@ class LiveTracks:
 
     def set_weights(self, cam: int, index: IntArray, weights: FloatArray) -> None:
         """Store robust decisions for rows at buffer positions ``index`` (from
-        :meth:`live_rows`, before any other change)."""
+        :meth:`live_rows`, before any other change); the gate's verdicts stay apart."""
         state = self._cams[cam]
         sizes = np.array([len(r.pieces) for r in state.rows])
         starts = np.concatenate([[0], np.cumsum(sizes)])

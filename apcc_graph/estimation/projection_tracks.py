@@ -27,7 +27,7 @@ from apcc_graph.estimation.initial_guess import FrameRows
 from apcc_graph.estimation.landmarks import Landmarks
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.robust import gnc_tls_weights
+from apcc_graph.estimation.robust import enough_rows, gnc_tls_weights
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.window import Window, observed_camera
 from apcc_graph.factors.camera_chain import CameraChain
@@ -38,6 +38,10 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
+
+DECIDE_OPEN = 3
+"""Rows the model-free gate must leave open before a live piece's point is triangulated and its
+rows judged against it (two rays fit any point; a wrong point then judges every later row)."""
 
 Rows = Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]]
 """camera -> (track ids, normalised points, whitening) of a new frame."""
@@ -90,8 +94,8 @@ class ProjectionTracks:
         ``keep`` (the frame the new window holds) start new pieces."""
         old, self.live = self.live, self._new_live()
         if keep is not None:
-            for cam, (ids, xy, whiten, weights) in old.frame_rows(keep).items():
-                self.live.add(keep, cam, ids, xy, whiten, weights)
+            for cam, (ids, xy, whiten, weights, verdicts) in old.frame_rows(keep).items():
+                self.live.add(keep, cam, ids, xy, whiten, weights, verdicts)
 
     def chain(self, cam: int, first: int, last: int) -> CameraChain:
         """Camera ``cam``'s chain with the base poses of frames ``first..last``."""
@@ -115,11 +119,19 @@ class ProjectionTracks:
     def commit(self, graph: gtsam.NonlinearFactorGraph, cam: int,
                obs: TrackObservations) -> None:
         """One projection factor for camera ``cam``'s committed pieces, with the outlier
-        decisions taken against each piece's robust point at the current estimates."""
+        decisions taken against each piece's robust point at the current estimates, times
+        the model-free gate's (call before the live tracks drop the pieces' frames)."""
         first, last = int(obs.frames.min()), int(obs.frames.max())
-        factor = ProjectionFactor(obs, self.chain(cam, first, last), self.dim)
-        norms = factor.residual_norms(self.span(first, last), robust=True)
-        factor.weights[:] = gnc_tls_weights(norms, self.inlier_sigmas, math.inf)
+        gate = self.live.gates(obs)
+        gate *= enough_rows(gate, obs.tracks, obs.starts, 2)
+        chain = self.chain(cam, first, last)
+        norms, points = robust_residual_norms(obs, chain, self.span(first, last), first, gate)
+        weights = gnc_tls_weights(norms, self.inlier_sigmas, math.inf) * gate
+        # A piece left with one row says nothing about the angles, but its point, fixed off
+        # that row's ray between linearisations, makes a large spurious cost.
+        weights *= enough_rows(weights, obs.tracks, obs.starts, 2)
+        factor = ProjectionFactor(obs, chain, self.dim, weights)
+        factor.points = points
         self.count(len(obs), int(np.sum(factor.weights == 0.0)))
         if not factor.weights.any():
             return
@@ -133,22 +145,24 @@ class ProjectionTracks:
         graph.add(gtsam.LinearContainerFactor(factor.factor().linearize(values), values))
 
     def known_rows(self, rows: Rows, marks: Mapping[int, NDArray[np.int64]],
-                   landmarks: Landmarks
+                   landmarks: Landmarks, gates: Mapping[int, FloatArray] | None = None
                    ) -> tuple[list[FrameRows], list[tuple[int, NDArray[np.bool_]]]]:
         """The new frame's observations of landmarks and of live tracks whose points are known
         from at least ``settings.min_live_rows`` observations (a vouched piece's point from two
         close frames is too loose to check a new observation against), and per entry the camera
-        and the mask of those rows."""
+        and the mask of those rows; rows with a gate weight of 0 in ``gates`` (camera -> per
+        row) are left out."""
         out, masks = [], []
         for cam, (ids, xy, whiten) in rows.items():
-            found = landmarks.known_rows(cam, marks[cam], xy, whiten)
+            open_ = np.ones(len(ids), dtype=bool) if gates is None else gates[cam] > 0.0
+            found = landmarks.known_rows(cam, np.where(open_, marks[cam], -1), xy, whiten)
             if found is not None:
                 out.append(found[0])
                 masks.append((cam, found[1]))
             pieces = self.live.piece_ids(cam, ids)
             points = self.live.points(cam)
             known = np.array([p in points for p in pieces.tolist()], dtype=bool)
-            known &= self.live.lengths(cam, pieces) >= self.settings.min_live_rows
+            known &= (self.live.lengths(cam, pieces) >= self.settings.min_live_rows) & open_
             if known.any():
                 pts = np.array([points[p] for p in pieces[known].tolist()])
                 out.append(FrameRows(cam, pts, xy[known], whiten[known]))
@@ -172,6 +186,15 @@ class ProjectionTracks:
             new = np.array([int(p) not in points for p in obs.ids], dtype=bool)
             if new.any():
                 self._decide(cam, obs, weights, index, new, chain, first, last)
+                known = np.array([int(p) in points for p in obs.ids], dtype=bool)
+                if not known.all():  # pieces the gate left too few rows to decide yet
+                    weights = weights[known[obs.tracks]]
+                    obs = obs.select(np.flatnonzero(known))
+                    if len(obs) == 0:
+                        continue
+                    first, last = int(obs.frames.min()), int(obs.frames.max())
+                    chain = self.chain(cam, first, last)
+            weights = weights * enough_rows(weights, obs.tracks, obs.starts, 2)
             if not weights.any():
                 continue
             factor = ProjectionFactor(obs, chain, self.dim, weights)
@@ -185,17 +208,22 @@ class ProjectionTracks:
                 index: NDArray[np.int64], new: NDArray[np.bool_], chain: CameraChain,
                 first: int, last: int) -> None:
         """Outlier decisions and points of the pieces ``new`` (a mask over ``obs``' pieces)
-        from a robust triangulation at the current estimates."""
+        from a robust triangulation at the current estimates. A piece with fewer than
+        :data:`DECIDE_OPEN` rows the model-free gate leaves open is not decided yet: its rows
+        stay out of this update, and it is decided again at the next."""
         points = self.live.points(cam)
         part = obs.select(np.flatnonzero(new))
         rows = np.concatenate([np.arange(obs.starts[t], obs.starts[t + 1])
                                for t in np.flatnonzero(new)])
+        gate = self.live.gates(part)
+        ready = enough_rows(gate, part.tracks, part.starts, DECIDE_OPEN)
         norms, found_points = robust_residual_norms(part, chain, self.span(first, last), first,
-                                                    np.ones(len(part)))
+                                                    gate * ready)
         decided = gnc_tls_weights(norms, self.inlier_sigmas, math.inf)
-        weights[rows] = decided
-        self.live.set_weights(cam, index[rows], decided)
-        for piece, point in zip(part.ids.tolist(), found_points, strict=True):
+        weights[rows] = decided * gate * ready
+        self.live.set_weights(cam, index[rows[ready]], decided[ready])
+        done = np.unique(part.tracks[ready])
+        for piece, point in zip(part.ids[done].tolist(), found_points[done], strict=True):
             points[piece] = point
 
     def keep_points(self, live: list[LiveFactor]) -> None:

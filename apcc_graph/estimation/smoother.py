@@ -39,10 +39,11 @@ from apcc_graph.estimation.fit_monitor import BlockFit, FitMonitor
 from apcc_graph.estimation.frame_priors import frame_priors
 from apcc_graph.estimation.front_end import front_end_guess
 from apcc_graph.estimation.graph import frame_key
-from apcc_graph.estimation.initial_guess import predict, refine
+from apcc_graph.estimation.initial_guess import predict, refine, row_inliers
 from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
+from apcc_graph.estimation.rotation_gate import NOT_JUDGED, gate_weights, judge_pair
 from apcc_graph.estimation.smoother_options import SmootherOptions, smoother_settings
 from apcc_graph.estimation.smoother_restarts import Restarts
 from apcc_graph.estimation.start_check import FirstFrames
@@ -193,6 +194,7 @@ class FixedLagSmoother(Restarts):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
         self._watch_gaps(f, t, rows, still.count - 1, still.last_time or 0.0)
+        verdicts = self._judge(f, rows)  # and frame f - 1's, before its pieces are committed
         self._tracked = self._tracked or bool(rows)
         if self._first is not None:  # frame 0 left at a restart: no verdict on the start
             self._first = self._first.keep(f, t, observations, f == 0 or window.inside(0))
@@ -206,11 +208,12 @@ class FixedLagSmoother(Restarts):
         self._make_room(add, f, t, rows)
         weights = {cam: np.ones(len(ids)) for cam, (ids, _, _) in rows.items()}
         marks = {cam: self._landmarks.of(cam, ids) for cam, (ids, _, _) in rows.items()}
-        thetas, status, accepted = self._initial_guess(f, rows, marks, base, weights)
+        gates = {cam: gate_weights(v) for cam, v in verdicts.items()}
+        thetas, status, accepted = self._initial_guess(f, rows, marks, base, weights, gates)
         window.enter(f, t, t, status)
         window.thetas[f] = thetas
         self._tracks.bases[f] = base
-        self._observe(add, f, t, rows, marks, weights)
+        self._observe(add, f, t, rows, marks, weights, verdicts)
         self._tracks.live.vouch(f, accepted)
         self._previous_rows, self._previous_base = rows, base
         frame_priors(add.graph, f, 0.0 if previous is None else t - previous, thetas,
@@ -235,7 +238,8 @@ class FixedLagSmoother(Restarts):
             for cam, (obs, ids) in promoted.items():
                 first, last = int(obs.frames.min()), int(obs.frames.max())
                 tracks.count(*self._landmarks.promote(add, cam, obs, ids,
-                                                      tracks.span(first, last), t))
+                                                      tracks.span(first, last), t,
+                                                      tracks.live.gates(obs)))
         if leaving:  # the window is full: its length in frames, for the staggered cuts
             self._full_window = f - first_kept
         due = tracks.live.take_due(f, seen, first_kept, f % self.settings.commit_every == 0,
@@ -246,15 +250,16 @@ class FixedLagSmoother(Restarts):
         tracks.live.drop_frames_before(first_kept)
 
     def _initial_guess(self, f: int, rows: Rows, marks: Mapping[int, NDArray[np.int64]],
-                       base: FloatArray | None, weights: dict[int, FloatArray]
+                       base: FloatArray | None, weights: dict[int, FloatArray],
+                       gates: Mapping[int, FloatArray]
                        ) -> tuple[FloatArray, NDArray[np.str_], dict[int, NDArray[np.int64]]]:
         """The new frame's angles and status, and per camera the tracks the front end accepted
         (if it ran); ``weights`` get the outlier decisions of its observations of known
-        points."""
+        points (those the gate, ``gates``, did not already reject)."""
         S, bending, accepted = self.robot.n_segments, self.bending, {}
         if f == 0:
             return self.theta0.copy(), np.full(S, "initial", dtype="<U24"), accepted
-        known, masks = self._tracks.known_rows(rows, marks, self._landmarks)
+        known, masks = self._tracks.known_rows(rows, marks, self._landmarks, gates)
         previous = self._window.latest(f - 1)
         prediction = predict(previous, self._older(f), bending)
         counts: dict[int, int] = {}
@@ -265,26 +270,53 @@ class FixedLagSmoother(Restarts):
                 previous, prediction, self.robot, bending, self._previous_base, base,
                 self._previous_rows, rows, self.options.threshold_px, self._rng)
         guess = refine(prediction, self.robot, bending, base, known, self.inlier_sigmas)
-        for (cam, mask), flags in zip(masks, guess.row_inliers, strict=True):
+        if guess.refined and any(g.min(initial=1.0) == 0.0 for g in gates.values()):
+            # the rows the gate held out of the solve are judged at its answer too
+            known, masks = self._tracks.known_rows(rows, marks, self._landmarks)
+            flags_of = row_inliers(guess.thetas, self.robot, bending, base, known,
+                                   self.inlier_sigmas)
+        else:
+            flags_of = guess.row_inliers
+        for (cam, mask), flags in zip(masks, flags_of, strict=True):
             weights[cam][mask] = flags.astype(float)
         status = np.full(S, "ok" if guess.refined else "predicted", dtype="<U24")
         return guess.thetas, status, accepted
 
     def _observe(self, add: Additions, f: int, t: float, rows: Rows,
-                 marks: Mapping[int, NDArray[np.int64]],
-                 weights: Mapping[int, FloatArray]) -> None:
-        """The new observations: of landmarks into the graph, of other tracks into their live
-        pieces."""
+                 marks: Mapping[int, NDArray[np.int64]], weights: Mapping[int, FloatArray],
+                 verdicts: Mapping[int, NDArray[np.int8]]) -> None:
+        """The new observations: of landmarks into the graph (with the gate's verdict so far:
+        a landmark observation is final), of other tracks into their live pieces (with the
+        gate's verdicts, which the next frame may still change)."""
         for cam, (ids, xy, whiten) in rows.items():
             lm = marks[cam] >= 0
             live = ~lm
             if live.any():
                 self._tracks.live.add(f, cam, ids[live], xy[live], whiten[live],
-                                      weights[cam][live])
+                                      weights[cam][live], verdicts[cam][live])
             if lm.any():
-                self._landmarks.observe(add, f, t, cam, marks[cam][lm], xy[lm],
-                                        weights[cam][lm])
-                self._tracks.count(int(lm.sum()), int(np.sum(weights[cam][lm] == 0.0)))
+                w = weights[cam][lm] * gate_weights(verdicts[cam][lm])
+                self._landmarks.observe(add, f, t, cam, marks[cam][lm], xy[lm], w)
+                self._tracks.count(int(lm.sum()), int(np.sum(w == 0.0)))
+
+    def _judge(self, f: int, rows: Rows) -> dict[int, NDArray[np.int8]]:
+        """The model-free gate (:mod:`~apcc_graph.estimation.rotation_gate`) between graph
+        frames ``f - 1`` and ``f``: the verdicts of frame ``f``'s rows (camera -> per row),
+        and frame ``f - 1``'s live rows updated."""
+        out = {cam: np.full(len(ids), NOT_JUDGED, dtype=np.int8)
+               for cam, (ids, _, _) in rows.items()}
+        threshold = self.settings.rotation_gate
+        if threshold is None or not self._window.inside(f - 1):
+            return out
+        for cam, (ids, xy, _) in rows.items():
+            before = self._previous_rows.get(cam)
+            found = (None if before is None
+                     else judge_pair(before[0], before[1], ids, xy, threshold, (f, cam)))
+            if found is not None:
+                i_before, i_now, agree = found
+                out[cam][i_now] = agree
+                self._tracks.live.judge(f - 1, cam, before[0][i_before], agree)
+        return out
 
     # -------------------------------------------------------------------------- solve
     def _solve(self, graph: gtsam.NonlinearFactorGraph, f: int, t: float,

@@ -101,6 +101,11 @@ class SmootherOptions:
             leave, at a share fixed per piece, so that tracks born together (all of them, when
             a camera starts or sees a new scene) are not all cut together, every lag, leaving a
             frame with no known point; ``False`` cuts each when its first frame leaves.
+        rotation_gate: the model-free outlier gate's threshold (radians of bearing): an
+            observation that a neighbouring frame of its camera could judge and that agrees
+            with neither neighbour's rotation is an outlier, whatever its residual
+            (:mod:`~apcc_graph.estimation.rotation_gate`); ``None`` leaves every decision to
+            the residuals at the current estimates.
         misfit_seconds: the residual test of the final frames, in blocks of this many seconds
             (:mod:`~apcc_graph.estimation.fit_monitor`; a failing block warns); ``None`` skips
             it (``apcc_graph.estimate`` tests the whole recording instead).
@@ -124,6 +129,7 @@ class SmootherOptions:
     factorization: str = "CHOLESKY"
     misfit_seconds: float | None = 2.0
     stagger_cuts: bool = True
+    rotation_gate: float | None = None
 
     def __post_init__(self) -> None:
         _coerce(self, {"lag": float, "uncertainty": bool, "relinearize_threshold": float,
@@ -149,6 +155,9 @@ class SmootherOptions:
         _positive(self, "landmark_sigma", self.landmark_sigma, "metres")
         _positive(self, "pose_sigma", self.pose_sigma, "radians and metres")
         _at_least(self, "max_landmarks", self.max_landmarks, 0, "landmarks per camera")
+        if self.rotation_gate is not None:
+            _coerce(self, {"rotation_gate": float})
+            _positive(self, "rotation_gate", self.rotation_gate, "radians of bearing")
         if self.misfit_seconds is not None:
             _coerce(self, {"misfit_seconds": float})
             _positive(self, "misfit_seconds", self.misfit_seconds, "seconds")

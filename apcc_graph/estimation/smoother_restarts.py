@@ -39,6 +39,11 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 
+PAUSE = 0.5
+"""Seconds: a gap in the recording after which, when none of the tracks seen before comes back,
+the robot may have moved anywhere (the motion prior over it is 5.5 degrees at the default
+``motion_sigma``), so the frames after it are re-acquired, whatever the lag (with a 2 s lag a
+1.5 s pause, handled as one long frame interval, put the robot 80 degrees off)."""
 LOOSE = math.pi / 6
 """Radians: the start prior of a re-acquisition when nothing says how far the robot went."""
 
@@ -66,7 +71,8 @@ class Restarts:
     def _watch_gaps(self, f: int, t: float, rows: Rows, frame: int,
                     timestamp: float) -> None:
         """Before graph frame ``f`` (graph time ``t``) enters: start a re-acquisition if the
-        tracks come back after a blackout, or if the recording paused longer than the lag
+        tracks come back after a blackout, or if the recording paused longer than
+        :data:`PAUSE` (or the lag)
         (``frame``, ``timestamp``: as received, for the warnings)."""
         window = self._window
         if not (self._tracked and rows):
@@ -75,7 +81,7 @@ class Restarts:
             sigmas = component_sigmas(self.bending, self._sigmas(f - 1))
             warn_blackout(frame, timestamp, sigmas)
             start, sigma = window.thetas[f - 1], float(np.nanmax(sigmas, initial=LOOSE))
-        elif (window.last_time is not None and t - window.last_time > window.lag
+        elif (window.last_time is not None and t - window.last_time > min(window.lag, PAUSE)
               and window.latest(f - 1) is not None):
             gap, self._pause_at = t - window.last_time, f
             if any(np.any(self._known(cam, ids)) for cam, (ids, _, _) in rows.items()):
