@@ -80,6 +80,10 @@ def test_track_runs_on_rendered_images(tmp_path: Path, capsys) -> None:
      "--calibrate"),
     (["estimate", str(SAMPLE), "--method", "smoother", "--calibrate", "--out", "{tmp}/e"],
      "--method batch"),
+    (["estimate", str(SAMPLE), "--rotation-gate", "0.02", "--out", "{tmp}/e"],
+     "--method smoother only"),
+    (["estimate", str(SAMPLE), "--method", "smoother", "--rotation-gate", "-1", "--out",
+      "{tmp}/e"], "positive angle"),
     (["plot"], "required"),
 ])
 def test_user_mistakes_end_in_one_line_and_exit_1(argv: list[str], expected: str,

@@ -53,6 +53,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      "(default: %(default)s)")
     est.add_argument("--lag", type=float, default=DEFAULT_LAG,
                      help="smoother window in seconds (default: %(default)s)")
+    est.add_argument("--rotation-gate", type=float, default=None, metavar="RAD",
+                     help="smoother only: also reject an observation that disagrees with the "
+                     "rotation of its camera between its frame and both neighbours by more "
+                     "than RAD radians of bearing, whatever its residual (0.02 suits 1 px; "
+                     "docs/estimation.md, the fixed-lag smoother). Off by default: it helped "
+                     "on a real robot's replayed motion and cost a little on model-exact scenes")
     est.add_argument("--theta0-deg", default=None,
                      help="starting configuration, degrees, one per segment; write "
                      "--theta0-deg=-10,5,3 when the first angle is negative. Without it the "
@@ -152,9 +158,14 @@ def _options(args: argparse.Namespace) -> dict:
     if args.method == "smoother":
         if not (args.lag > 0.0 and math.isfinite(args.lag)):
             raise UserError(f"--lag {args.lag!r}: expected a positive number of seconds")
-        options["settings"] = SmootherOptions(lag=args.lag)
+        gate = args.rotation_gate
+        if gate is not None and not (gate > 0.0 and math.isfinite(gate)):
+            raise UserError(f"--rotation-gate {gate!r}: expected a positive angle in radians")
+        options["settings"] = SmootherOptions(lag=args.lag, rotation_gate=gate)
     elif args.lag is not None and args.lag != DEFAULT_LAG:
         raise UserError("--lag applies to --method smoother only")
+    elif args.rotation_gate is not None:
+        raise UserError("--rotation-gate applies to --method smoother only")
     if args.theta0_sigma_deg is not None and args.theta0_deg is None:
         raise UserError("--theta0-sigma-deg applies to a given start (--theta0-deg); without "
                         "one the start is found from the images, with its own sigma")

@@ -98,6 +98,9 @@ class Reacquisition:
         sigma: the start prior of the batch (radians; at least :data:`MIN_SIGMA`).
         search: first run the unknown-start search over the kept frames; when it determines
             their start, its answer and sigma replace ``theta0`` and ``sigma``.
+        then: after this re-acquisition, keep the frames until they span this many seconds
+            and re-acquire them once more (:meth:`longer`); ``None``: once.
+        span: keep the frames until they span this many seconds rather than the lag.
     """
 
     robot: Robot
@@ -107,6 +110,8 @@ class Reacquisition:
     theta0: FloatArray
     sigma: float
     search: bool = True
+    then: float | None = None
+    span: float | None = None
     slots: list[int] = field(default_factory=list)
     _times: list[float] = field(default_factory=list)
     _frames: list[FrameObservations] = field(default_factory=list)
@@ -119,8 +124,16 @@ class Reacquisition:
 
     def due(self, t: float, lag: float) -> bool:
         """Whether the first kept frame leaves a window of ``lag`` seconds at graph time
-        ``t`` (or has left it, after a restart)."""
-        return bool(self._times) and self._times[0] < t - lag
+        ``t`` (or has left it, after a restart); with ``span``, once the kept frames span
+        that many seconds (at least ``lag``)."""
+        wait = lag if self.span is None else max(self.span, lag)
+        return bool(self._times) and self._times[0] < t - wait
+
+    def longer(self, span: float) -> Reacquisition:
+        """The same re-acquisition, its frames kept until they span ``span`` seconds (a second
+        round over more of the frames after the blackout)."""
+        return replace(self, then=None, span=span, slots=list(self.slots),
+                       _times=list(self._times), _frames=list(self._frames))
 
     def sequence(self) -> Sequence:
         """The kept frames as a recording (their frame ``k`` is the ``k``-th kept)."""

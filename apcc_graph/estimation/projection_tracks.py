@@ -9,7 +9,11 @@ long) all its observations enter one projection factor for good (:meth:`Projecti
 Outlier decisions: a piece seen for the first time in the live factor, and a piece being
 committed, have their point triangulated robustly at the current estimates and each observation
 is judged against it (truncated quadratic, ``Robustness.inlier_sigmas``); the observations of
-a new frame were judged by its initial guess. Each live piece's point, from the last
+a new frame were judged by its initial guess. With ``SmootherOptions.rotation_gate`` the
+model-free gate's weights (:mod:`apcc_graph.estimation.rotation_gate`) multiply those decisions,
+and a new piece waits for :data:`DECIDE_OPEN` rows the gate leaves open. A piece with fewer
+than two weighted rows is left out of its factor (:func:`~apcc_graph.estimation.robust.
+enough_rows`). Each live piece's point, from the last
 linearisation, starts the next frame's initial guess (:meth:`ProjectionTracks.known_rows`).
 """
 
