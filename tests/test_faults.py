@@ -217,3 +217,14 @@ def test_the_start_is_replaced_only_by_a_search_answer_far_from_it(
     if replaced:
         np.testing.assert_array_equal(first.replacement.theta0, x0)
         assert first.replacement.search is False
+
+
+def test_the_pause_line_reports_both_estimators_and_their_ratio() -> None:
+    from apcc_graph.bench.reliability import PauseRun
+
+    pause = PauseRun(45, 150, np.radians([0.9, 0.2, 0.1]), np.radians([0.45, 0.1, 0.1]), True)
+    np.testing.assert_allclose(pause.ratio, [2.0, 2.0, 1.0])
+    table = format_reliability([], 450, pause)
+    assert "1.5 s of frames dropped before frame 150" in table
+    assert "smoother 0.900 / 0.200 / 0.100 deg" in table and "ratio 2.0 / 2.0 / 1.0" in table
+    assert "re-acquisition said" in table

@@ -18,6 +18,7 @@ from apcc_graph.cli import main
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.io import load_sequence, save_sequence
 from apcc_graph.model.sequence import Sequence
+from apcc_graph.simulation.faults import dropped_frames
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sequences" / "planar_three"
 FRAMES = 130
@@ -87,16 +88,23 @@ def test_a_lag_of_a_few_frames(sample: Sequence) -> None:
 def dropped(sequence: Sequence, start: int, frames: int) -> Sequence:
     """``sequence`` without frames ``start .. start + frames - 1``: the recording paused while
     the robot moved on."""
-    keep = np.r_[0:start, start + frames:sequence.n_frames]
-    index = np.full(sequence.n_frames, -1)
-    index[keep] = np.arange(len(keep))
-    tracks = {}
-    for cam, t in sequence.tracks.items():
-        m = index[t.frames] >= 0
-        tracks[cam] = type(t)(index[t.frames[m]], t.track_ids[m], t.uv[m])
-    base = None if sequence.world_T_base is None else sequence.world_T_base[keep]
-    return Sequence(sequence.robot, sequence.timestamps[keep], tracks, world_T_base=base,
-                    thetas=sequence.thetas[keep], psis=None)
+    return dropped_frames(sequence, start, start + frames)
+
+
+def test_dropped_frames_keep_everything_else() -> None:
+    sample = load_sequence(SAMPLE)
+    paused = dropped(sample, 50, 20)
+    assert paused.n_frames == sample.n_frames - 20
+    np.testing.assert_array_equal(paused.timestamps[49:51], sample.timestamps[[49, 70]])
+    for cam, t in sample.tracks.items():
+        p = paused.tracks[cam]
+        kept = (t.frames < 50) | (t.frames >= 70)
+        assert len(p.frames) == int(kept.sum())
+        np.testing.assert_array_equal(p.uv, t.uv[kept])
+        np.testing.assert_array_equal(p.frames, np.where(t.frames[kept] < 50, t.frames[kept],
+                                                         t.frames[kept] - 20))
+    with pytest.raises(ValueError, match="frames before and after"):
+        dropped_frames(sample, 0, 10)
 
 
 @pytest.mark.parametrize("lag", [1.0, 2.0])

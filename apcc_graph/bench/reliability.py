@@ -165,6 +165,45 @@ def run_case(case: FaultCase, undisturbed: FloatArray | None = None,
                     float(np.nanmin(inside)), said, ends, lag_after, lag_clean), errors
 
 
+PAUSE = 45
+"""Frames the pause drops (1.5 s at 30 fps), from the frame where the faults start."""
+
+
+@dataclass(frozen=True)
+class PauseRun:
+    """The pause's row: RMS per segment over every frame after the pause (radians)."""
+
+    frames: int  # frames dropped
+    at: int  # the first frame after the pause (in the paused recording)
+    smoother: FloatArray
+    batch: FloatArray
+    warned: bool  # the smoother said it re-acquires
+
+    @property
+    def ratio(self) -> FloatArray:
+        """The smoother over the batch on the same frames (the target is 1.5)."""
+        return self.smoother / self.batch
+
+
+def run_pause(frames: int = 450, seed: int = 1) -> PauseRun:
+    """The undisturbed recording paused for :data:`PAUSE` frames from frame ``frames // 3``
+    while the robot moved on; the default smoother and the batch on it."""
+    at = frames // 3
+    sequence = faults.dropped_frames(_simulate(load_robot(ROBOT_FILE), frames, seed).sequence,
+                                     at, at + PAUSE)
+    assert sequence.thetas is not None
+    out = []
+    with warnings.catch_warnings(record=True) as caught, \
+            threadpool_limits(limits=1, user_api="blas"):
+        warnings.simplefilter("always")
+        for method in ("smoother", "batch"):
+            result = estimate(sequence, method=method, theta0=sequence.thetas[0],
+                              theta0_sigma=THETA0_SIGMA, noise_px=NOISE_PX, progress=False)
+            out.append(rms(result.errors(sequence.thetas)[at:]))
+    warned = any("paused for" in str(w.message) for w in caught)
+    return PauseRun(PAUSE, at, out[0], out[1], warned)
+
+
 def _what_it_did(caught: list[warnings.WarningMessage], status: np.ndarray) -> str:
     """The warnings (first words) and the statuses of the faulty frames (how many frames
     have each on some segment)."""
@@ -185,8 +224,9 @@ def run_reliability(frames: int = 450, seed: int = 1, progress: bool = False
     return rows
 
 
-def format_reliability(rows: list[FaultRun], frames: int) -> str:
-    """The benchmark's table."""
+def format_reliability(rows: list[FaultRun], frames: int, pause: PauseRun | None = None
+                       ) -> str:
+    """The benchmark's table (and the pause's line, if given)."""
     deg = np.degrees
     out = [f"reliability: the default smoother (lag 1 s), {frames} frames, fault from frame "
            f"{frames // 3}; RMS and its Cramer-Rao bound per segment over the frames some "
@@ -211,4 +251,12 @@ def format_reliability(rows: list[FaultRun], frames: int) -> str:
             "more than",
             f"doubled it on some segment (back within twice the undisturbed error {AFTER} "
             "frames after asks more than the images allow)"]
+    if pause is not None:
+        show = lambda v: " / ".join(f"{x:.3f}" for x in np.degrees(v))  # noqa: E731
+        out += ["", f"pause: {pause.frames / FPS:.1f} s of frames dropped before frame "
+                f"{pause.at} while the robot moved on "
+                f"({'re-acquisition said' if pause.warned else 'nothing said'}); RMS over "
+                f"every frame after it: smoother {show(pause.smoother)} deg, the batch on the "
+                f"same frames {show(pause.batch)}, ratio "
+                + " / ".join(f"{x:.1f}" for x in pause.ratio) + " (target 1.5)"]
     return "\n".join(out)

@@ -35,7 +35,9 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         "sees, the robot frozen for 5 s, a 10 deg jump, swapped track ids, 50%% outliers for "
         "1 s, a start 5 deg off) into the same simulated recording and run the default "
         "smoother: what it did, RMS beside the Cramer-Rao bound of the faulted recording, "
-        "recovery time in frames (target 30) and sigma honesty.",
+        "recovery time in frames (target 30) and sigma honesty. Then the recording paused "
+        "for 1.5 s (frames dropped while the robot moves on): the smoother and the batch "
+        "over every frame after the pause (target: within 1.5x the batch).",
         epilog=f"example:\n  {EXAMPLES['reliability']}", formatter_class=FORMATTER)
     rel.add_argument("--frames", type=at_least(300), default=450,
                      help="frames per recording (default 450; the fault starts at a third)")
@@ -78,7 +80,7 @@ def run_soak(args: argparse.Namespace) -> str:
 
 def run_reliability(args: argparse.Namespace) -> str:
     """Run the reliability benchmark; return its table."""
-    from apcc_graph.bench.reliability import format_reliability, run_reliability
+    from apcc_graph.bench.reliability import format_reliability, run_pause, run_reliability
 
     return format_reliability(run_reliability(args.frames, args.seed, progress=True),
-                              args.frames)
+                              args.frames, run_pause(args.frames, args.seed))

@@ -54,11 +54,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     est.add_argument("--lag", type=float, default=DEFAULT_LAG,
                      help="smoother window in seconds (default: %(default)s)")
     est.add_argument("--rotation-gate", type=float, default=None, metavar="RAD",
-                     help="smoother only: also reject an observation that disagrees with the "
-                     "rotation of its camera between its frame and both neighbours by more "
-                     "than RAD radians of bearing, whatever its residual (0.02 suits 1 px; "
-                     "docs/estimation.md, the fixed-lag smoother). Off by default: it helped "
-                     "on a real robot's replayed motion and cost a little on model-exact scenes")
+                     help="smoother only: also reject an observation that disagrees by more "
+                     "than RAD radians with its camera's rotation to both neighbouring frames "
+                     "(0.02 suits 1 px; off by default; docs/estimation.md, the fixed-lag "
+                     "smoother)")
     est.add_argument("--theta0-deg", default=None,
                      help="starting configuration, degrees, one per segment; write "
                      "--theta0-deg=-10,5,3 when the first angle is negative. Without it the "

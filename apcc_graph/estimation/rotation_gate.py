@@ -25,11 +25,22 @@ last frame's neighbour was seen, or its track ended.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Protocol
+
 import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.frontend.rotation_pairs import draw_pairs, relative_rotation
 from apcc_graph.model.arrays import FloatArray, IntArray
+
+
+class Judged(Protocol):
+    """What keeps the earlier frame's rows (:class:`~apcc_graph.estimation.live_tracks.
+    LiveTracks`)."""
+
+    def judge(self, frame: int, cam: int, ids: IntArray, agree: NDArray[np.bool_]) -> None:
+        """Combine a neighbour's judgement into the verdicts of ``frame``'s rows of ``ids``."""
 
 NOT_JUDGED = -1
 """The verdict of an observation no neighbour has judged."""
@@ -80,3 +91,32 @@ def gate_weights(verdicts: NDArray[np.int8]) -> FloatArray:
     judge it, 1 otherwise."""
     return (np.asarray(verdicts) != 0).astype(float)
 
+
+def judge_frame(f: int, rows: Mapping[int, tuple[IntArray, FloatArray, FloatArray]],
+                before: Mapping[int, tuple[IntArray, FloatArray, FloatArray]],
+                live: Judged, threshold: float | None) -> dict[int, NDArray[np.int8]]:
+    """The gate between frames ``f - 1`` and ``f`` of a streaming estimator.
+
+    Args:
+        f: the new frame.
+        rows, before: camera -> (track ids, normalised points, whitening) of frame ``f`` and
+            of frame ``f - 1`` (empty when there is none).
+        live: the live tracks; frame ``f - 1``'s rows they hold get the judgement too.
+        threshold: the gate's threshold (radians of bearing); ``None``: the gate is off.
+
+    Returns:
+        camera -> the verdicts of frame ``f``'s rows (:data:`NOT_JUDGED` where no pair could
+        judge them, or everywhere when the gate is off).
+    """
+    out = {cam: np.full(len(ids), NOT_JUDGED, dtype=np.int8) for cam, (ids, _, _) in rows.items()}
+    if threshold is None:
+        return out
+    for cam, (ids, xy, _) in rows.items():
+        earlier = before.get(cam)
+        found = (None if earlier is None
+                 else judge_pair(earlier[0], earlier[1], ids, xy, threshold, (f, cam)))
+        if found is not None:
+            i_before, i_now, agree = found
+            out[cam][i_now] = agree
+            live.judge(f - 1, cam, earlier[0][i_before], agree)
+    return out

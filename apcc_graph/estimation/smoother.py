@@ -44,7 +44,7 @@ from apcc_graph.estimation.initial_guess import predict, refine, row_inliers
 from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import LiveFactor, ProjectionTracks, Rows, frame_rows
-from apcc_graph.estimation.rotation_gate import NOT_JUDGED, gate_weights, judge_pair
+from apcc_graph.estimation.rotation_gate import gate_weights, judge_frame
 from apcc_graph.estimation.smoother_options import SmootherOptions, smoother_settings
 from apcc_graph.estimation.smoother_restarts import Restarts
 from apcc_graph.estimation.start_check import FirstFrames
@@ -195,7 +195,9 @@ class FixedLagSmoother(Restarts):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
         self._watch_gaps(f, t, rows, still.count - 1, still.last_time or 0.0)
-        verdicts = self._judge(f, rows)  # and frame f - 1's, before its pieces are committed
+        verdicts = judge_frame(  # and frame f - 1's, before its pieces are committed
+            f, rows, self._previous_rows if window.inside(f - 1) else {}, self._tracks.live,
+            self.settings.rotation_gate)
         self._tracked = self._tracked or bool(rows)
         if self._first is not None:  # frame 0 left at a restart: no verdict on the start
             self._first = self._first.keep(f, t, observations, f == 0 or window.inside(0))
@@ -299,25 +301,6 @@ class FixedLagSmoother(Restarts):
                 w = weights[cam][lm] * gate_weights(verdicts[cam][lm])
                 self._landmarks.observe(add, f, t, cam, marks[cam][lm], xy[lm], w)
                 self._tracks.count(int(lm.sum()), int(np.sum(w == 0.0)))
-
-    def _judge(self, f: int, rows: Rows) -> dict[int, NDArray[np.int8]]:
-        """The model-free gate (:mod:`~apcc_graph.estimation.rotation_gate`) between graph
-        frames ``f - 1`` and ``f``: the verdicts of frame ``f``'s rows (camera -> per row),
-        and frame ``f - 1``'s live rows updated."""
-        out = {cam: np.full(len(ids), NOT_JUDGED, dtype=np.int8)
-               for cam, (ids, _, _) in rows.items()}
-        threshold = self.settings.rotation_gate
-        if threshold is None or not self._window.inside(f - 1):
-            return out
-        for cam, (ids, xy, _) in rows.items():
-            before = self._previous_rows.get(cam)
-            found = (None if before is None
-                     else judge_pair(before[0], before[1], ids, xy, threshold, (f, cam)))
-            if found is not None:
-                i_before, i_now, agree = found
-                out[cam][i_now] = agree
-                self._tracks.live.judge(f - 1, cam, before[0][i_before], agree)
-        return out
 
     # -------------------------------------------------------------------------- solve
     def _solve(self, graph: gtsam.NonlinearFactorGraph, f: int, t: float,

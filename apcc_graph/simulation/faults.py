@@ -13,6 +13,9 @@ bound of the faulted recording can be computed as for any simulation:
 - :func:`swapped_ids`: a tracker's wrong association over several frames (tracks exchange ids
   in a cycle, then return to their own), marked as wrong associations in the truth.
 
+A pause in the recording (frames never received while the robot moved on) changes the frames
+themselves: :func:`dropped_frames` returns the recording without them.
+
 Motions with faults (the robot frozen, a sudden jump) are new true angles given to
 :func:`~apcc_graph.simulation.simulator.simulate` (its ``bends`` option): :func:`frozen_bends`
 and :func:`jumped_bends` make them from the undisturbed motion.
@@ -168,3 +171,27 @@ def jumped_bends(thetas: FloatArray, frame: int, segment: int, jump_deg: float,
                          "theta_max either way")
     return out
 
+
+def dropped_frames(sequence: Sequence, start: int, stop: int) -> Sequence:
+    """``sequence`` without frames ``start..stop-1``: the recording paused while the robot
+    moved on (the frames after keep their timestamps, so the gap shows in time; tracks keep
+    their ids, as a tracker that picked them up again would).
+
+    Raises:
+        ValueError: an empty or out-of-range span.
+    """
+    if not 0 < start < stop < sequence.n_frames:
+        raise ValueError(f"frames {start}..{stop - 1}: expected 0 < start < stop < "
+                         f"{sequence.n_frames} (frames before and after the pause)")
+    keep = np.r_[0:start, stop:sequence.n_frames]
+    index = np.full(sequence.n_frames, -1)
+    index[keep] = np.arange(len(keep))
+    tracks = {}
+    for cam, t in sequence.tracks.items():
+        m = index[t.frames] >= 0
+        tracks[cam] = Tracks(index[t.frames[m]], t.track_ids[m], t.uv[m])
+    base = None if sequence.world_T_base is None else sequence.world_T_base[keep]
+    thetas = None if sequence.thetas is None else sequence.thetas[keep]
+    psis = None if sequence.psis is None else sequence.psis[keep]
+    return Sequence(sequence.robot, sequence.timestamps[keep], tracks, world_T_base=base,
+                    thetas=thetas, psis=psis)
