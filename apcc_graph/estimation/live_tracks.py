@@ -154,7 +154,7 @@ class LiveTracks:
         and :meth:`live_rows` return them), looked up by (piece, frame) among the rows still
         held (call before :meth:`drop_frames_before`); 1 for a row not found."""
         state = self._cams[obs.camera]
-        if not state.rows:
+        if not any(np.any(r.verdicts == 0) for r in state.rows):  # the gate closed nothing
             return np.ones(len(obs))
         keys = np.concatenate([(r.pieces << 32) | r.frame for r in state.rows])
         verdicts = np.concatenate([r.verdicts for r in state.rows])

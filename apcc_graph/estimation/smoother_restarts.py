@@ -41,7 +41,7 @@ from apcc_graph.model.robot import Robot
 
 PAUSE = 0.5
 """Seconds: a gap in the recording after which, when none of the tracks seen before comes back,
-the robot may have moved anywhere (the motion prior over it is 5.5 degrees at the default
+the robot may have moved anywhere (the motion prior over it is 20 degrees at the default
 ``motion_sigma``), so the frames after it are re-acquired, whatever the lag (with a 2 s lag a
 1.5 s pause, handled as one long frame interval, put the robot 80 degrees off)."""
 SECOND_ROUND: float | None = 2.0
