@@ -1,10 +1,10 @@
-"""The same recording gives the same bytes: the batch always; the smoother without landmarks.
+"""The same recording gives the same bytes: the batch, and the smoother with its landmarks.
 
-With landmarks (the default), two runs of the smoother in one process differ by about 1e-8 rad
-from some frame on (frame 119 or 171 of the shipped sample, varying from run to run), which no
-Python-side state explains (no clock, no unseeded randomness, no hash-ordered iteration; BLAS on
-one thread does not change it); it comes with gtsam's handling of the landmarks' Pose3 and
-Point3 variables. The known failure is recorded below, not hidden.
+The smoother's landmarks used to make two runs in one process differ by about 1e-8 rad from
+some frame on (frame 119 or 171 of the shipped sample, varying from run to run): gtsam 4.3's
+fixed-lag smoother chose what to re-eliminate before each marginalisation by walking a hash set
+of clique pointers. The window is now held by
+:class:`~apcc_graph.estimation.fixed_lag.FixedLagISAM2`, which does not.
 """
 
 from __future__ import annotations
@@ -52,8 +52,6 @@ def test_the_batch_gives_the_same_bytes_twice(sample) -> None:
     assert a.sigmas.tobytes() == b.sigmas.tobytes()
 
 
-@pytest.mark.xfail(reason="known: with landmarks, runs differ by ~1e-8 rad after frame ~120 "
-                          "(gtsam-side; module docstring)", strict=False)
 def test_the_default_smoother_gives_the_same_bytes_twice(sample) -> None:
     settings = SmootherOptions(uncertainty=False)
     a, b = (_smoothed(sample, sample.n_frames, settings) for _ in range(2))

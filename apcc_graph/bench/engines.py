@@ -1,4 +1,5 @@
-"""The compiled kernels against their numpy reference, timed in the same run.
+"""The compiled kernels against their numpy reference, and the reproducible window against
+gtsam's fixed-lag smoother, timed in the same run.
 
 ``apcc-graph bench smoother`` reports the smoother's update time and the batch's seconds; this
 module gives both their peer: the same estimator on the same recording with the numpy
@@ -6,12 +7,16 @@ reference of the projection model's hot loops (:mod:`apcc_graph.factors.engine`)
 speed-up is measured, not remembered. The kernels are the same steps to rounding, so the
 batches agree to rounding; the smoothers can differ by a little more (about 1e-3 degree), as
 rounding tips some of iSAM2's re-linearisation decisions. The largest difference is reported.
+
+The window's peer: the same smoother with gtsam's ``IncrementalFixedLagSmoother`` holding its
+window (``SmootherOptions(reproducible=False)``), which marginalises at every update and is
+not reproducible (:mod:`apcc_graph.estimation.fixed_lag`).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from tqdm import tqdm
@@ -82,4 +87,45 @@ def format_engine_times(rows: list[EngineTimes], frames: int) -> list[str]:
         f"smoother {deg(np.max(np.abs(compiled.smoother_thetas - reference.smoother_thetas))):.1e}"
         f" deg, batch {deg(np.max(np.abs(compiled.batch_thetas - reference.batch_thetas))):.1e}"
         " deg")
+    return lines
+
+
+@dataclass(frozen=True)
+class WindowTimes:
+    """The smoother's update times with one window solver, on the peer recording."""
+
+    window: str
+    update_median: float  # seconds
+    update_p95: float
+    thetas: np.ndarray  # (F, S) final angles (radians)
+
+
+WINDOWS = {"reproducible": True, "gtsam": False}
+"""The window solvers compared: label -> ``SmootherOptions.reproducible``."""
+
+
+def window_times(sequence: Sequence, settings: SmootherOptions, progress: bool = False
+                 ) -> list[WindowTimes]:
+    """The compiled smoother's update times on ``sequence`` with each window solver."""
+    out = []
+    for label, reproducible in WINDOWS.items():
+        times, thetas = _smoother_times(sequence, replace(settings, reproducible=reproducible),
+                                        progress, f"smoother ({label} window)")
+        out.append(WindowTimes(label, float(np.median(times)),
+                               float(np.percentile(times, 95)), thetas))
+    return out
+
+
+def format_window_times(rows: list[WindowTimes]) -> list[str]:
+    """The comparison's lines for the benchmark's table."""
+    ours, peer = rows[0], rows[-1]
+    lines = ["  the window: reproducible (ours) against gtsam's IncrementalFixedLagSmoother:",
+             f"  {'window':<13} {'update median':>14} {'update p95':>11}"]
+    for r in rows:
+        lines.append(f"  {r.window:<13} {r.update_median * 1e3:11.2f} ms "
+                     f"{r.update_p95 * 1e3:8.2f} ms")
+    diff = np.degrees(np.max(np.abs(ours.thetas - peer.thetas)))
+    lines.append(f"  ours / gtsam's: update median {ours.update_median / peer.update_median:.2f}"
+                 f"x, p95 {ours.update_p95 / peer.update_p95:.2f}x; largest angle difference "
+                 f"{diff:.1e} deg")
     return lines

@@ -20,7 +20,8 @@ exactly there). Every figure is measured here, in the same run:
   last 300;
 - speed: the smoother's ``update`` per frame (median, 95th percentile, 3 cameras,
   lag 1 s) and the batch's seconds; and both on one ``frames``-frame recording with the
-  compiled kernels and with their numpy reference, the peer (:mod:`apcc_graph.bench.engines`);
+  compiled kernels and with their numpy reference, the peer (:mod:`apcc_graph.bench.engines`),
+  and the smoother with its reproducible window and with gtsam's fixed-lag smoother;
 - memory: resident set size after 1,000 and after ``memory_frames`` frames of a stream whose
   finished frames are taken out (``pop_final``).
 """
@@ -39,7 +40,14 @@ from tqdm import tqdm
 
 from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.bench import table_cells as _cells
-from apcc_graph.bench.engines import EngineTimes, engine_times, format_engine_times
+from apcc_graph.bench.engines import (
+    EngineTimes,
+    WindowTimes,
+    engine_times,
+    format_engine_times,
+    format_window_times,
+    window_times,
+)
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
@@ -109,6 +117,7 @@ class SmootherBenchmark:
     rss_small: float  # bytes, after 1,000 frames
     rss_large: float  # bytes, after memory_frames frames
     engines: tuple[EngineTimes, ...] = ()  # compiled and numpy reference, on one recording
+    windows: tuple[WindowTimes, ...] = ()  # reproducible and gtsam's window, the same one
 
 
 def resident_set_size() -> float:
@@ -244,16 +253,18 @@ def run_smoother_benchmark(
     runs, tracks = _accuracy(robot, frames, seeds, outliers, methods, progress)
     early = late = median = p95 = float("nan")
     engines: list[EngineTimes] = []
+    windows: list[WindowTimes] = []
     if long_frames:
         early, late, median, p95 = _drift(robot, long_frames, seeds[0] + 100, progress)
         peer = room_simulation(robot, frames, 0.1, seeds[0] + 100).sequence
         engines = engine_times(peer, QUICK, progress)
+        windows = window_times(peer, QUICK, progress)
     rss_small = rss_large = float("nan")
     if memory_frames:
         rss_small, rss_large = _memory(robot, memory_frames, seeds[0] + 200, progress)
     return SmootherBenchmark(frames, tuple(seeds), float(np.mean(tracks)), tuple(runs),
                              long_frames, early, late, median, p95, memory_frames, rss_small,
-                             rss_large, tuple(engines))
+                             rss_large, tuple(engines), tuple(windows))
 
 
 
@@ -338,6 +349,8 @@ def _speed_and_memory(r: SmootherBenchmark) -> list[str]:
                    f"{np.median(batch):.1f} s")
     if r.engines:
         out += format_engine_times(list(r.engines), r.frames)
+    if r.windows:
+        out += format_window_times(list(r.windows))
     if r.memory_frames:
         mb = 1024.0**2
         out += ["", "memory: resident set size of a stream (finished frames taken out)",

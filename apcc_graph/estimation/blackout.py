@@ -18,7 +18,10 @@ basin that Gauss-Newton steps frame by frame miss: on the 210-frame test recordi
 20 and 40 frames from 60 degrees off came within 12 and 3 degrees of segment 1 (honest sigmas
 of 6 and 1.3), segments 2 and 3 within 2 and 0.4. The batch's angles become those frames' final
 estimates (status ``"reacquired"``), and the window restarts at the newest of them with the
-batch's marginal sigmas as its prior. Not robust yet: that window holds one frame and only new
+batch's marginal sigmas as its prior. The blind frames themselves are kept out of the new
+tracks' first, wrong minimum (the window restarts at the last of them when the tracks come
+back) and, once the batch has solved, :func:`bridged` between the frames before the blackout
+and the first re-acquired frame. Not robust yet: that window holds one frame and only new
 tracks, and gtsam can fail on it a second later (docs/estimation.md, the known failures).
 """
 
@@ -85,6 +88,41 @@ def warn_pause(frame: int, timestamp: float, gap: float, sigma: float) -> None:
                   BlackoutWarning, stacklevel=4)
 
 
+@dataclass(frozen=True)
+class Forward:
+    """A blind frame's estimate from the frames before the blackout alone: its frame vector,
+    flattened per-segment covariance blocks (as the window keeps them) and graph time."""
+
+    thetas: FloatArray
+    blocks: FloatArray
+    time: float
+
+
+def bridged(forward: Forward, after: FloatArray, after_blocks: FloatArray, time: float,
+            motion_sigma: float, width: int) -> tuple[FloatArray, FloatArray]:
+    """A blind frame's estimate given every frame: ``forward`` (from the frames before the
+    blackout) fused with what the first frame after it (``after``, its flattened covariance
+    blocks ``after_blocks``, at graph time ``time``) says of it through the random-walk
+    motion prior (``motion_sigma`` rad/sqrt(s)) over the time between them.
+
+    No frame between the two saw anything, so the two are independent given the blind frame
+    (the two-filter smoother; exact for the random walk, per segment block of ``width``
+    components). Returns its frame vector and flattened covariance blocks; where either side
+    has no covariance, ``forward`` unchanged.
+    """
+    P = np.asarray(forward.blocks, dtype=float).reshape(-1, width, width)
+    drift = motion_sigma**2 * max(time - forward.time, 0.0) * np.eye(width)
+    B = np.asarray(after_blocks, dtype=float).reshape(-1, width, width) + drift
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(B))):
+        return forward.thetas, forward.blocks
+    m = np.asarray(forward.thetas, dtype=float).reshape(-1, width, 1)
+    b = np.asarray(after, dtype=float).reshape(-1, width, 1)
+    P_inv, B_inv = np.linalg.inv(P), np.linalg.inv(B)
+    C = np.linalg.inv(P_inv + B_inv)
+    x = C @ (P_inv @ m + B_inv @ b)
+    return x.ravel(), C.ravel()
+
+
 @dataclass
 class Reacquisition:
     """The frames after a blackout, kept until one batch re-acquires their angles.
@@ -98,6 +136,8 @@ class Reacquisition:
         sigma: the start prior of the batch (radians; at least :data:`MIN_SIGMA`).
         search: first run the unknown-start search over the kept frames; when it determines
             their start, its answer and sigma replace ``theta0`` and ``sigma``.
+        blind: after a blackout, the blind frames' estimates from the frames before it
+            (:class:`Forward`), for :func:`bridged` once the batch has solved.
         then: after this re-acquisition, keep the frames until they span this many seconds
             and re-acquire them once more (:meth:`longer`); ``None``: once.
         span: keep the frames until they span this many seconds rather than the lag.
@@ -112,6 +152,7 @@ class Reacquisition:
     search: bool = True
     then: float | None = None
     span: float | None = None
+    blind: dict[int, Forward] = field(default_factory=dict)
     slots: list[int] = field(default_factory=list)
     _times: list[float] = field(default_factory=list)
     _frames: list[FrameObservations] = field(default_factory=list)
@@ -121,6 +162,11 @@ class Reacquisition:
         self.slots.append(slot)
         self._times.append(t)
         self._frames.append(observations)
+
+    @property
+    def first_time(self) -> float:
+        """The graph time of the first kept frame."""
+        return self._times[0]
 
     def due(self, t: float, lag: float) -> bool:
         """Whether the first kept frame leaves a window of ``lag`` seconds at graph time

@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 from apcc_graph.estimation.bends import parameterisation, start_vector
 from apcc_graph.estimation.blackout import Reacquisition
 from apcc_graph.estimation.fit_monitor import BlockFit, FitMonitor
+from apcc_graph.estimation.fixed_lag import WindowSolver
 from apcc_graph.estimation.frame_priors import frame_priors
 from apcc_graph.estimation.front_end import front_end_guess
 from apcc_graph.estimation.graph import frame_key
@@ -111,7 +112,7 @@ class FixedLagSmoother(Restarts):
         self.options = o = GraphOptions() if options is None else options
         self._window = Window(s.lag, b.width**2 * robot.n_segments,
                               lambda: new_gtsam_smoother(s.lag, s.relinearize_threshold,
-                                                         s.factorization),
+                                                         s.factorization, s.reproducible),
                               lambda frame: present_frame(b, frame))
         self._tracks = ProjectionTracks(robot, o, s, self._window, b, self.inlier_sigmas)
         w = self._window
@@ -123,7 +124,7 @@ class FixedLagSmoother(Restarts):
         self._rng = np.random.default_rng(0)
         self._live_indices: list[int] = []
         self._full_window: int | None = None  # frames in a full window, once one left
-        self._tracked = False  # whether any frame had tracks yet
+        self._last_seen: int | None = None  # the last graph frame with tracks
         self._reacquiring: Reacquisition | None = None
         self._first: FirstFrames | None = FirstFrames(  # for the start search, if need be
             Reacquisition(robot, o, self.inlier_sigmas, b, self.theta0, o.theta0_sigma),
@@ -141,12 +142,12 @@ class FixedLagSmoother(Restarts):
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
-    def _smoother(self) -> gtsam.FixedLagSmoother:
+    def _smoother(self) -> WindowSolver:
         """gtsam's smoother holding the window (tests replace it to provoke failures)."""
         return self._window.smoother
 
     @_smoother.setter
-    def _smoother(self, smoother: gtsam.FixedLagSmoother) -> None:
+    def _smoother(self, smoother: WindowSolver) -> None:
         self._window.smoother = smoother
 
     @property
@@ -198,7 +199,7 @@ class FixedLagSmoother(Restarts):
         verdicts = judge_frame(  # and frame f - 1's, before its pieces are committed
             f, rows, self._previous_rows if window.inside(f - 1) else {}, self._tracks.live,
             self.settings.rotation_gate)
-        self._tracked = self._tracked or bool(rows)
+        self._last_seen = f if rows else self._last_seen
         if self._first is not None:  # frame 0 left at a restart: no verdict on the start
             self._first = self._first.keep(f, t, observations, f == 0 or window.inside(0))
         if self._reacquiring is not None:

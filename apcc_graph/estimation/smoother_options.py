@@ -106,6 +106,11 @@ class SmootherOptions:
             with neither neighbour's rotation is an outlier, whatever its residual
             (:mod:`~apcc_graph.estimation.rotation_gate`); ``None`` leaves every decision to
             the residuals at the current estimates.
+        reproducible: hold the window in
+            :class:`~apcc_graph.estimation.fixed_lag.FixedLagISAM2`, which gives the same bytes
+            on every run and marginalises in blocks; ``False``: gtsam's
+            ``IncrementalFixedLagSmoother``, whose runs differ by about 1e-8 rad once landmarks
+            are in the window (docs/estimation.md, "The fixed-lag smoother").
         misfit_seconds: the residual test of the final frames, in blocks of this many seconds
             (:mod:`~apcc_graph.estimation.fit_monitor`; a failing block warns); ``None`` skips
             it (``apcc_graph.estimate`` tests the whole recording instead).
@@ -130,6 +135,7 @@ class SmootherOptions:
     misfit_seconds: float | None = 2.0
     stagger_cuts: bool = True
     rotation_gate: float | None = None
+    reproducible: bool = True
 
     def __post_init__(self) -> None:
         _coerce(self, {"lag": float, "uncertainty": bool, "relinearize_threshold": float,
@@ -137,7 +143,7 @@ class SmootherOptions:
                        "front_end_rows": int,
                        "point_iterations": int, "commit_every": int, "landmarks": bool,
                        "landmark_sigma": float, "pose_sigma": float, "max_landmarks": int,
-                       "stagger_cuts": bool,
+                       "stagger_cuts": bool, "reproducible": bool,
                        "still_chi2": float})
         if not (math.isfinite(self.lag) and self.lag > 0.0):
             raise ValueError(f"{type(self).__name__}.lag = {self.lag!r}: expected a positive "

@@ -25,11 +25,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.blackout import (
+    Forward,
     Reacquisition,
+    bridged,
     tracks_returned,
     warn_blackout,
     warn_pause,
 )
+from apcc_graph.estimation.fixed_lag import WindowSolver
 from apcc_graph.estimation.graph import frame_key
 from apcc_graph.estimation.landmarks import Landmarks
 from apcc_graph.estimation.options import GraphOptions
@@ -66,13 +69,13 @@ class Restarts:
     _window: Window
     _tracks: ProjectionTracks
     _landmarks: Landmarks
-    _tracked: bool
+    _last_seen: int | None
     _previous_rows: Rows
     _reacquiring: Reacquisition | None
     _live_indices: list[int]
     _known: Callable[[int, NDArray[np.int64]], NDArray[np.bool_]]
     _sigmas: Callable[[int], FloatArray]
-    _smoother: gtsam.FixedLagSmoother
+    _smoother: WindowSolver
     _pause_at: int | None = None  # the first graph frame after the last pause
 
     def _watch_gaps(self, f: int, t: float, rows: Rows, frame: int,
@@ -82,13 +85,14 @@ class Restarts:
         :data:`PAUSE` (or the lag)
         (``frame``, ``timestamp``: as received, for the warnings)."""
         window = self._window
-        if not (self._tracked and rows):
+        if self._last_seen is None or not rows:
             return
+        blind: dict[int, Forward] = {}
         if window.inside(f - 1) and tracks_returned(rows, self._previous_rows, self._known):
             sigmas = component_sigmas(self.bending, self._sigmas(f - 1))
             warn_blackout(frame, timestamp, sigmas)
-            start, sigma = window.thetas[f - 1], float(np.nanmax(sigmas, initial=LOOSE))
-            then = None
+            start, sigma = window.thetas[f - 1].copy(), float(np.nanmax(sigmas, initial=LOOSE))
+            then, blind = None, self._leave_blind(f - 1)
         elif (window.last_time is not None and t - window.last_time > min(window.lag, PAUSE)
               and window.latest(f - 1) is not None):
             gap, self._pause_at = t - window.last_time, f
@@ -101,7 +105,33 @@ class Restarts:
         else:
             return
         self._reacquiring = Reacquisition(self.robot, self.options, self.inlier_sigmas,
-                                          self.bending, start, sigma, then=then)
+                                          self.bending, start, sigma, then=then, blind=blind)
+
+    def _leave_blind(self, g: int) -> dict[int, Forward]:
+        """Tracks came back after a blackout that ended with graph frame ``g``: the window
+        restarts at ``g`` under its marginal from the frames before, so the new tracks, from a
+        start that far off, cannot drag the blind frames (they leave with the motion prior's
+        prediction and its sigmas); returns those frames' estimates for :func:`bridged`."""
+        window, seen = self._window, self._last_seen
+        covariances = {h: self._covariance(h) for h in sorted(window.stamps)}
+        blind = {h: Forward(window.thetas[h].copy(), self.bending.blocks(cov).ravel(),
+                            window.times[h])
+                 for h, cov in covariances.items() if seen is None or h > seen}
+        loose = np.diag(np.full(len(window.thetas[g]), LOOSE**2))
+        cov = covariances[g]
+        prior = gtsam.noiseModel.Gaussian.Covariance(cov if np.all(np.isfinite(cov)) else loose)
+        self._restart(g, window.stamps[g], window.thetas[g].copy(), prior, None,
+                      {h: self._sigmas(h) for h in covariances})
+        return blind
+
+    def _covariance(self, h: int) -> FloatArray:
+        """Frame ``h``'s marginal covariance (its frame vector's), whether or not the smoother
+        reports sigmas; NaN if gtsam cannot give it."""
+        try:
+            return np.asarray(self._smoother.marginalCovariance(frame_key(h)), dtype=float)
+        except (RuntimeError, IndexError, ValueError):
+            n = len(self._window.thetas[h])
+            return np.full((n, n), np.nan)
 
     def _older(self, f: int) -> FloatArray | None:
         """Frame ``f - 2``'s estimate for the constant-velocity prediction of frame ``f``;
@@ -122,6 +152,10 @@ class Restarts:
         except (RuntimeError, ValueError, IndexError):
             return  # the window goes on as it was
         window.reacquired(kept.slots, thetas, blocks, self.robot.n_segments)
+        motion = self.options.motion_sigma
+        for h, forward in kept.blind.items() if motion is not None else ():
+            window.revise(h, *bridged(forward, thetas[0], blocks[0], kept.first_time, motion,
+                                      self.bending.width))
         sigma = np.where(np.isfinite(sigmas[-1]), np.maximum(sigmas[-1], 1e-6), LOOSE)
         self._restart(g, window.stamps[g], thetas[-1], gtsam.noiseModel.Diagonal.Sigmas(sigma),
                       None, dict(zip(kept.slots, blocks, strict=True)))
@@ -133,7 +167,8 @@ class Restarts:
                  sigmas: Mapping[int, FloatArray] | None = None) -> None:
         """A new smoother holding only frame f, at ``thetas``, with ``prior`` (default: a sigma
         of ``options.theta0_sigma``, at least 1 deg); the other frames leave with their last
-        estimates (and ``sigmas``). After a gtsam failure, or after a re-acquisition."""
+        estimates (and ``sigmas``). After a gtsam failure, after a re-acquisition, and when the
+        tracks come back after a blackout."""
         self._window.renew()
         graph = gtsam.NonlinearFactorGraph()
         sigma = max(self.options.theta0_sigma, math.radians(1.0))

@@ -5,8 +5,8 @@
   variables), their latest estimates and statuses, which of them the next update marginalises,
   the final estimates of the frames that left, and gtsam's smoother holding the window (replaced
   when a smoother restarts);
-- :func:`new_gtsam_smoother` and :func:`key_stamps`: gtsam's fixed-lag smoother and its map of
-  timestamps per key;
+- :func:`new_gtsam_smoother` and :func:`key_stamps`: the fixed-lag smoother over gtsam's iSAM2
+  (:class:`~apcc_graph.estimation.fixed_lag.FixedLagISAM2`) and its timestamps per key;
 - :func:`start_angles` and :func:`observed_camera`: the checks of a stream's robot, start and
   observations.
 
@@ -25,6 +25,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from apcc_graph.estimation.fixed_lag import FixedLagISAM2, GtsamFixedLag, WindowSolver
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.parameterisation import Bending
@@ -100,23 +101,22 @@ def component_sigmas(bending: Bending, blocks: FloatArray) -> FloatArray:
 
 
 def new_gtsam_smoother(lag: float, relinearize_threshold: float,
-                       factorization: str = "CHOLESKY") -> gtsam.FixedLagSmoother:
-    """gtsam's iSAM2 fixed-lag smoother over ``lag`` seconds, factoring the window's linear
-    system by ``factorization`` (``"CHOLESKY"`` or ``"QR"``)."""
+                       factorization: str = "CHOLESKY", reproducible: bool = True
+                       ) -> WindowSolver:
+    """iSAM2 over the last ``lag`` seconds, factoring the window's linear system by
+    ``factorization`` (``"CHOLESKY"`` or ``"QR"``): marginalising the same way on every run
+    (:mod:`~apcc_graph.estimation.fixed_lag`), or gtsam's fixed-lag smoother."""
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(relinearize_threshold)
     params.relinearizeSkip = 1
     params.findUnusedFactorSlots = True
     params.setFactorization(factorization)
-    return gtsam.IncrementalFixedLagSmoother(lag, params)
+    return FixedLagISAM2(lag, params) if reproducible else GtsamFixedLag(lag, params)
 
 
-def key_stamps(stamps: Iterable[tuple[int, float]] = ()) -> gtsam.FixedLagSmootherKeyTimestampMap:
-    """gtsam's map of the timestamp of each new variable (by key), from ``(key, seconds)``."""
-    out = gtsam.FixedLagSmootherKeyTimestampMap()
-    for key, stamp in stamps:
-        out.insert((key, stamp))
-    return out
+def key_stamps(stamps: Iterable[tuple[int, float]] = ()) -> dict[int, float]:
+    """The timestamp of each new variable (seconds, by key), from ``(key, seconds)``."""
+    return {int(key): float(stamp) for key, stamp in stamps}
 
 
 def check_timestamp(frame: int, timestamp: float, last: float | None) -> float:
@@ -159,7 +159,7 @@ class Window:
     """
 
     def __init__(self, lag: float, n_segments: int,
-                 new_smoother: Callable[[], gtsam.FixedLagSmoother],
+                 new_smoother: Callable[[], WindowSolver],
                  present: Callable[[SmootherFrame], SmootherFrame] | None = None) -> None:
         self.lag = lag
         self.n_segments = n_segments
@@ -242,6 +242,12 @@ class Window:
                 self.thetas[h], self.status[h] = th, status
             elif h in self.final:
                 self.final[h] = SmootherFrame(h, self.final[h].timestamp, th, cov, status)
+
+    def revise(self, frame: int, thetas: FloatArray, blocks: FloatArray) -> None:
+        """A frame that left takes a better final estimate (its status unchanged), unless it
+        was taken already (:meth:`pop_final`)."""
+        if frame in self.final:
+            self.final[frame] = replace(self.final[frame], thetas=thetas, sigmas=blocks)
 
     def pop_final(self) -> list[SmootherFrame]:
         """The frames that left since the last call, in order, and forget them."""
