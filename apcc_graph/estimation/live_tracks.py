@@ -291,8 +291,9 @@ class LiveTracks:
         index = index[order]
         xy = np.concatenate([r.xy for r in state.rows])[index]
         whiten = np.concatenate([r.whiten for r in state.rows])[index]
-        weights = np.concatenate([r.weights * gate_weights(r.verdicts)
-                                  for r in state.rows])[index]
+        weights = np.concatenate([r.weights for r in state.rows])[index]
+        if any(np.any(r.verdicts == 0) for r in state.rows):  # the gate closed some
+            weights *= gate_weights(np.concatenate([r.verdicts for r in state.rows])[index])
         cam = next(c for c, s in self._cams.items() if s is state)
         obs = TrackObservations.build(cam, frames[order], pieces[index], xy, whiten)
         return obs, weights, index
