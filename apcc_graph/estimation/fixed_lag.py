@@ -55,8 +55,9 @@ class FixedLagISAM2:
                values: gtsam.Values | None = None, stamps: Mapping[int, float] | None = None,
                remove: Sequence[int] = ()) -> gtsam.ISAM2Result:
         """Add ``graph`` with the new variables ``values`` (timestamps ``stamps``, seconds; a
-        known key takes the new time), remove the factors at indices ``remove``, then
-        marginalise every variable older than the lag."""
+        known key takes the new time), remove the factors at indices ``remove``, then, once
+        the oldest variable is ``slack`` past the lag, marginalise every variable older than
+        the lag."""
         held = set(self.stamps)
         self.stamps.update({int(k): float(s) for k, s in (stamps or {}).items()})
         now = max(self.stamps.values(), default=0.0)

@@ -9,8 +9,9 @@ is about to leave the window, or at ``GraphOptions.max_track_frames`` (``project
 ``live_tracks``), the new frame's initial angles (``initial_guess``), the landmarks
 (``landmarks``) and the still frames (``stillness``), all in :mod:`apcc_graph.estimation`.
 
-gtsam's ``IncrementalFixedLagSmoother`` (iSAM2) holds the window, re-linearises the factors
-whose frames move more than ``relinearize_threshold`` and marginalises frames older than ``lag``.
+gtsam's iSAM2 holds the window (:mod:`~apcc_graph.estimation.fixed_lag`: the same bytes on
+every run), re-linearises the factors whose frames move more than ``relinearize_threshold`` and
+marginalises frames older than ``lag``.
 
 Failure modes handled: a frame without tracks (the motion prior carries it; without a motion
 prior, a loose prior at the initial guess keeps the system determined, so marginalising such a
@@ -143,7 +144,7 @@ class FixedLagSmoother(Restarts):
 
     @property
     def _smoother(self) -> WindowSolver:
-        """gtsam's smoother holding the window (tests replace it to provoke failures)."""
+        """The iSAM2 smoother holding the window (tests replace it to provoke failures)."""
         return self._window.smoother
 
     @_smoother.setter
