@@ -574,9 +574,13 @@ def test_bench_real_scores_each_stretch_and_pools_them(
                           recordings=("sweep",))
     by = {(r.version, r.method): r for r in rows}
     assert set(by) == {("real", "floor"), ("real", "rot-floor"), ("real", "chain"),
-                       ("model-exact", "chain")}
+                       ("model-exact", "chain"), ("model-exact", "bound")}
     # both stretches (2.9 s and 3.5 s), every frame outside the gap, nothing across it
-    assert all(r.frames == len(thetas) - gap.sum() for r in rows)
+    assert all(r.frames == len(thetas) - gap.sum() for r in rows if r.method != "bound")
+    # the bound of the tips, sampled (measured 0.50 / 1.19 mm; the chain, which takes its start
+    # as exact where the bound has a 2 deg prior, is at 0.90 / 1.17 mm)
+    bound = by["model-exact", "bound"].position
+    assert np.all(bound > 0.2e-3) and np.all(bound < 3e-3), bound
     # the data obey the model: the floor is the calibration's leftover, far below a millimetre
     assert np.all(by["real", "floor"].position < 0.3e-3), by["real", "floor"]
     assert np.all(by["real", "rot-floor"].position < 1e-3), by["real", "rot-floor"]
@@ -616,7 +620,19 @@ def test_bench_real_pools_the_honesty_of_every_stretch() -> None:
                   3, None, np.array([2.0, 3.0]), np.array([0.03, 0.01]), 1, 2, 4)
     floor = RealRow("rec", "real", "floor", np.array([0.001, 0.002]), np.array([0.0, 0.0]),
                     0.0, 3)
-    table = format_real_bench([floor, row])
+    bound = RealRow("rec", "model-exact", "bound", np.array([0.002, 0.004]),
+                    np.array([np.nan, np.nan]), 0.0, 2)
+    exact = RealRow("rec", "model-exact", "batch", np.array([0.003, 0.002]),
+                    np.array([0.1, 0.2]), 1.0, 3)
+    table = format_real_bench([floor, row, bound, exact])
+    cells: dict[tuple[str, ...], list[str]] = {}
+    for line in table.splitlines():  # the first table's rows (the honesty table follows)
+        if line.startswith("rec "):
+            cells.setdefault(tuple(line.split()[1:3]), line.split()[3:])
+    # each row over its yardstick: the floor on the measured motion, the bound on the exact
+    assert cells["real", "batch"][:2] == ["10.00", "10.0x"]
+    assert cells["model-exact", "batch"][:5] == ["3.00", "1.5x", "5.73", "2.00", "0.5x"]
+    assert cells["model-exact", "bound"][:3] == ["2.00", "-", "-"]
     honest = [line for line in table.splitlines() if line.startswith("rec") and "%" in line]
     assert len(honest) == 1
     assert honest[0].split()[3:] == ["2", "3", "3.0%", "1.0%", "1/2", "4"]

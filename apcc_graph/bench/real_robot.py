@@ -11,7 +11,9 @@ Each estimate's tips are compared with the measured tips beside the floor (the m
 bends that best fit them) and the rotation floor (at the bends whose tip rotations best fit the
 measured ones, what tip cameras can deliver: :func:`~apcc_graph.evaluation.tip_floor.
 rotation_floor`); then the same for the model-exact version of the motion (the model's
-own tips at the floor's bends), where the floor is zero.
+own tips at the floor's bends), where the floor is zero and the yardstick is the Cramer-Rao
+bound of the tips (:mod:`~apcc_graph.evaluation.tip_bound`): ``bound``, of the whole stretch
+(a batch's), and, when a smoother runs, ``lag bound``, of its final estimates with its lag.
 
 The motion capture lost the robot now and then; nothing is made up across those gaps, so each
 stretch between them of at least ``MIN_STRETCH`` seconds is replayed and estimated on its own
@@ -38,6 +40,7 @@ from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.window import RestartWarning
+from apcc_graph.evaluation.tip_bound import tip_bound
 from apcc_graph.evaluation.tip_floor import (
     TipErrors,
     TipFloor,
@@ -63,6 +66,9 @@ MODEL_SIGMA = (1e-3, math.radians(0.5))
 """The benchmark's model noise (position m, rotation rad) for ``noise`` and ``noise@floor``."""
 MIN_STRETCH = 2.0
 """Stretches between gaps shorter than this (seconds) are left out of the benchmark."""
+BOUND_STEP = 20
+"""Frames between the samples of the lag bound on the model-exact motion (each sample builds
+and factors one information matrix)."""
 
 
 @dataclass(frozen=True)
@@ -130,6 +136,17 @@ def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, n
                     noise_px=noise_px, graph=graph)
 
 
+def _bounds(seq: Sequence, methods: tuple[str, ...]) -> dict[str, int | None]:
+    """The yardsticks of the model-exact motion: ``bound`` (the whole stretch, a batch's)
+    and, with a smoother, ``lag bound`` (its final estimates', with its default lag in
+    frames)."""
+    out: dict[str, int | None] = {"bound": None}
+    if any(m == "smoother" or m in PEERS for m in methods):
+        dt = float(np.median(np.diff(seq.timestamps)))
+        out["lag bound"] = round(SmootherOptions().lag / dt)
+    return out
+
+
 def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers: float,
                     seed: int, start_sigma: float, methods: tuple[str, ...],
                     model_sigma: tuple[float, float] = MODEL_SIGMA) -> list[RealRow]:
@@ -150,8 +167,13 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
     for k in kept:
         real = replay_motion(model, ends, stretch=k, **options).simulation.sequence
         floor = tip_floor(model, real.truth_tips)
-        exact = replay_motion(model, ends, model_tips=floor.tips, bends=floor.bends, stretch=k,
-                              **options).simulation.sequence
+        exact_sim = replay_motion(model, ends, model_tips=floor.tips, bends=floor.bends,
+                                  stretch=k, **options).simulation
+        exact = exact_sim.sequence
+        for method, lag in _bounds(exact, methods).items():
+            bound = tip_bound(exact_sim, noise_px, start_sigma, lag, BOUND_STEP, spatial=True)
+            errors.setdefault(("model-exact", method), []).append(
+                TipErrors(bound.sigmas, np.full_like(bound.sigmas, np.nan)))
         errors.setdefault(("real", "floor"), []).append(floor.errors)
         errors.setdefault(("real", "rot-floor"), []).append(
             rotation_floor(model, real.truth_tips).errors)
@@ -183,6 +205,19 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
                             nees, misfit, warned, len(errs),
                             restarts.get((version, method), 0)))
     return rows
+
+
+def _yardstick(rows: list[RealRow], row: RealRow) -> np.ndarray | None:
+    """``row``'s yardstick among ``rows`` (module docstring), ``None`` for a yardstick."""
+    if row.method in ("floor", "bound", "lag bound"):
+        return None
+    if row.version != "model-exact":
+        name = "floor"
+    else:
+        name = "lag bound" if row.method == "smoother" or row.method in PEERS else "bound"
+    found = [r.position for r in rows if r.recording == row.recording and r.method == name
+             and (r.version == row.version or name == "floor")]
+    return found[0] if found else None
 
 
 @dataclass(frozen=True)
@@ -250,23 +285,33 @@ def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers:
 
 def format_real_bench(rows: list[RealRow]) -> str:
     """The table: RMS tip position and tangent error per segment end, and the ratio to the
-    floor of the same recording."""
-    floors = {r.recording: r.position for r in rows if r.method == "floor"}
+    recording's yardstick: the floor on the measured motion; on the model-exact motion the
+    bound (the lag bound for a smoother)."""
     n_seg = len(rows[0].position)
-    head = "".join(f"{f'tip {i + 1} mm':>10}{'/floor':>8}{'deg':>7}" for i in range(n_seg))
+    head = "".join(f"{f'tip {i + 1} mm':>10}{'/yard':>8}{'deg':>7}" for i in range(n_seg))
     lines = [f"{'recording':<17}{'motion':<13}{'method':<10}{head}{'time s':>9}"]
     for r in rows:
+        yard = _yardstick(rows, r)
         cells = ""
         for i in range(n_seg):
-            ratio = ("-" if r.version == "model-exact" or r.method == "floor"
-                     else f"{r.position[i] / max(floors[r.recording][i], 1e-12):.1f}x")
+            ratio = "-" if yard is None else f"{r.position[i] / max(yard[i], 1e-12):.1f}x"
+            tangent = math.degrees(r.tangent[i])
             cells += (f"{r.position[i] * 1e3:>10.2f}{ratio:>8}"
-                      f"{math.degrees(r.tangent[i]):>7.2f}")
+                      + (f"{tangent:>7.2f}" if math.isfinite(tangent) else f"{'-':>7}"))
         lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<10}{cells}{r.seconds:>9.1f}")
+    lines.append("/yard: over the yardstick of the same recording and motion: the floor on the "
+                 "measured motion; on the model-exact motion the bound (the lag bound for a "
+                 "smoother)")
     lines.append("floor: the calibrated model's tips at the bends that best fit the measured "
                  "tips (zero on the model-exact motion)")
     lines.append("rot-floor: the model's tips at the bends whose tip rotations best fit the "
                  "measured ones (what tip cameras measure well): the camera-based yardstick")
+    if any(r.method == "bound" for r in rows):
+        lines.append("bound, lag bound: the Cramer-Rao bound of the tips on the model-exact "
+                     f"motion (every {BOUND_STEP}th frame), of the whole stretch and of a "
+                     f"smoother's final estimates with a {SmootherOptions().lag:g} s lag; from the "
+                     "pixels and the start prior, without the motion prior the estimators add "
+                     "(which can take them below it where the robot moves slowly)")
     if any(r.method in ("noise", "noise@floor") for r in rows):
         lines.append("noise: the batch with model error as noise; noise@floor: the same started "
                      "at the floor's bends of every frame (a yardstick: the right basin given)")
