@@ -323,3 +323,14 @@ def test_model_sigma_reaches_the_batch_in_metres_and_radians() -> None:
     assert graph.model_sigma == pytest.approx((2e-3, math.radians(0.5)))
     args = build_parser().parse_args(["bench", "real", "--model-sigma", "1.5,0.25"])
     assert args.model_sigma == pytest.approx((1.5e-3, math.radians(0.25)))
+
+
+@pytest.mark.parametrize("given, expected", [([], "CHOLESKY"), (["--factorization", "QR"], "QR"),
+                                             (["--factorization", "CHOLESKY"], "CHOLESKY")])
+def test_factorization_reaches_the_smoother(given: list[str], expected: str) -> None:
+    from apcc_graph.cli.estimate import _options
+    from apcc_graph.cli.main import build_parser
+
+    args = build_parser().parse_args(["estimate", "data/sequences/planar_three", "--method",
+                                      "smoother", *given, "--out", "x"])
+    assert _options(args)["settings"].factorization == expected

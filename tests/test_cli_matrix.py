@@ -84,6 +84,10 @@ def test_track_runs_on_rendered_images(tmp_path: Path, capsys) -> None:
      "--method smoother only"),
     (["estimate", str(SAMPLE), "--method", "smoother", "--rotation-gate", "-1", "--out",
       "{tmp}/e"], "positive angle"),
+    (["estimate", str(SAMPLE), "--factorization", "QR", "--out", "{tmp}/e"],
+     "--method smoother only"),
+    (["estimate", str(SAMPLE), "--method", "smoother", "--factorization", "LU", "--out",
+      "{tmp}/e"], "LU"),
     (["plot"], "required"),
 ])
 def test_user_mistakes_end_in_one_line_and_exit_1(argv: list[str], expected: str,

@@ -58,6 +58,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      "than RAD radians with its camera's rotation to both neighbouring frames "
                      "(0.02 suits 1 px; off by default; docs/estimation.md, the fixed-lag "
                      "smoother)")
+    est.add_argument("--factorization", choices=("CHOLESKY", "QR"), default=None,
+                     help="smoother only: how iSAM2 factors the window (default CHOLESKY; QR "
+                     "is slower but does not square the window's condition number, and gtsam "
+                     "then never failed on the real robot's motion; docs/estimation.md, the "
+                     "fixed-lag smoother)")
     est.add_argument("--theta0-deg", default=None,
                      help="starting configuration, degrees, one per segment; write "
                      "--theta0-deg=-10,5,3 when the first angle is negative. Without it the "
@@ -160,11 +165,14 @@ def _options(args: argparse.Namespace) -> dict:
         gate = args.rotation_gate
         if gate is not None and not (gate > 0.0 and math.isfinite(gate)):
             raise UserError(f"--rotation-gate {gate!r}: expected a positive angle in radians")
-        options["settings"] = SmootherOptions(lag=args.lag, rotation_gate=gate)
+        options["settings"] = SmootherOptions(lag=args.lag, rotation_gate=gate,
+                                              factorization=args.factorization or "CHOLESKY")
     elif args.lag is not None and args.lag != DEFAULT_LAG:
         raise UserError("--lag applies to --method smoother only")
     elif args.rotation_gate is not None:
         raise UserError("--rotation-gate applies to --method smoother only")
+    elif args.factorization is not None:
+        raise UserError("--factorization applies to --method smoother only")
     if args.theta0_sigma_deg is not None and args.theta0_deg is None:
         raise UserError("--theta0-sigma-deg applies to a given start (--theta0-deg); without "
                         "one the start is found from the images, with its own sigma")
