@@ -67,8 +67,8 @@ MODEL_SIGMA = (1e-3, math.radians(0.5))
 MIN_STRETCH = 2.0
 """Stretches between gaps shorter than this (seconds) are left out of the benchmark."""
 BOUND_STEP = 20
-"""Frames between the samples of the lag bound on the model-exact motion (each sample builds
-and factors one information matrix)."""
+"""Frames between the samples of the tips' bounds on the model-exact motion (each sample of the
+lag bound builds and factors one information matrix)."""
 
 
 @dataclass(frozen=True)
