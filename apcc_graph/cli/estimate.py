@@ -25,6 +25,7 @@ from apcc_graph.model.robot import Robot
 
 if TYPE_CHECKING:
     from apcc_graph.estimation.result import Estimate
+    from apcc_graph.estimation.smoother_options import SmootherOptions
 
 EXAMPLE = ("example:\n  apcc-graph estimate data/sequences/planar_three --method batch "
            "--out /tmp/est --theta0-deg 20.5,-15.2,21.3")
@@ -32,6 +33,22 @@ EXAMPLE = ("example:\n  apcc-graph estimate data/sequences/planar_three --method
 
 CALIBRATE_CHOICES = ("all", "models", "mounts")
 """What ``--calibrate`` estimates: everything, the segment models, or the camera mounts."""
+
+
+def _add_smoother_arguments(est: argparse.ArgumentParser) -> None:
+    """The smoother's own options."""
+    est.add_argument("--lag", type=float, default=DEFAULT_LAG,
+                     help="smoother window in seconds (default: %(default)s)")
+    est.add_argument("--rotation-gate", type=float, default=None, metavar="RAD",
+                     help="smoother only: also reject an observation that disagrees by more "
+                     "than RAD radians with its camera's rotation to both neighbouring frames "
+                     "(0.02 suits 1 px; off by default; docs/estimation.md, the fixed-lag "
+                     "smoother)")
+    est.add_argument("--factorization", choices=("CHOLESKY", "QR"), default=None,
+                     help="smoother only: how iSAM2 factors the window (default CHOLESKY; QR "
+                     "is slower but does not square the window's condition number, and gtsam "
+                     "then never failed on the real robot's motion; docs/estimation.md, the "
+                     "fixed-lag smoother)")
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -51,18 +68,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      help="chain: the paper's frame-by-frame method; batch: the whole sequence "
                      "in one factor graph; smoother: fixed-lag smoother, frame by frame "
                      "(default: %(default)s)")
-    est.add_argument("--lag", type=float, default=DEFAULT_LAG,
-                     help="smoother window in seconds (default: %(default)s)")
-    est.add_argument("--rotation-gate", type=float, default=None, metavar="RAD",
-                     help="smoother only: also reject an observation that disagrees by more "
-                     "than RAD radians with its camera's rotation to both neighbouring frames "
-                     "(0.02 suits 1 px; off by default; docs/estimation.md, the fixed-lag "
-                     "smoother)")
-    est.add_argument("--factorization", choices=("CHOLESKY", "QR"), default=None,
-                     help="smoother only: how iSAM2 factors the window (default CHOLESKY; QR "
-                     "is slower but does not square the window's condition number, and gtsam "
-                     "then never failed on the real robot's motion; docs/estimation.md, the "
-                     "fixed-lag smoother)")
+    _add_smoother_arguments(est)
     est.add_argument("--theta0-deg", default=None,
                      help="starting configuration, degrees, one per segment; write "
                      "--theta0-deg=-10,5,3 when the first angle is negative. Without it the "
@@ -153,26 +159,36 @@ def _spatial_options(args: argparse.Namespace) -> dict:
     return {"spatial": True}
 
 
-def _options(args: argparse.Namespace) -> dict:
-    """The estimator's keyword arguments from the command line, checked."""
-    from apcc_graph.estimation.options import BatchOptions, GraphOptions
+def _smoother_settings(args: argparse.Namespace) -> SmootherOptions | None:
+    """The smoother's settings from the command line, checked (``None`` for another method,
+    which must not have been given any)."""
     from apcc_graph.estimation.smoother_options import SmootherOptions
 
-    options: dict = {"progress": True, **_spatial_options(args)}
     if args.method == "smoother":
         if not (args.lag > 0.0 and math.isfinite(args.lag)):
             raise UserError(f"--lag {args.lag!r}: expected a positive number of seconds")
         gate = args.rotation_gate
         if gate is not None and not (gate > 0.0 and math.isfinite(gate)):
             raise UserError(f"--rotation-gate {gate!r}: expected a positive angle in radians")
-        options["settings"] = SmootherOptions(lag=args.lag, rotation_gate=gate,
-                                              factorization=args.factorization or "CHOLESKY")
-    elif args.lag is not None and args.lag != DEFAULT_LAG:
+        return SmootherOptions(lag=args.lag, rotation_gate=gate,
+                               factorization=args.factorization or "CHOLESKY")
+    if args.lag is not None and args.lag != DEFAULT_LAG:
         raise UserError("--lag applies to --method smoother only")
-    elif args.rotation_gate is not None:
+    if args.rotation_gate is not None:
         raise UserError("--rotation-gate applies to --method smoother only")
-    elif args.factorization is not None:
+    if args.factorization is not None:
         raise UserError("--factorization applies to --method smoother only")
+    return None
+
+
+def _options(args: argparse.Namespace) -> dict:
+    """The estimator's keyword arguments from the command line, checked."""
+    from apcc_graph.estimation.options import BatchOptions, GraphOptions
+
+    options: dict = {"progress": True, **_spatial_options(args)}
+    settings = _smoother_settings(args)
+    if settings is not None:
+        options["settings"] = settings
     if args.theta0_sigma_deg is not None and args.theta0_deg is None:
         raise UserError("--theta0-sigma-deg applies to a given start (--theta0-deg); without "
                         "one the start is found from the images, with its own sigma")
