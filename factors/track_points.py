@@ -109,9 +109,14 @@ class TrackObservations:
                                  self.whiten[rows], self.ids[tracks], starts)
 
 
-def cut_tracks(frames: ArrayLike, track_ids: ArrayLike, max_frames: int | None) -> IntArray:
+def cut_tracks(frames: ArrayLike, track_ids: ArrayLike, max_frames: int | None,
+               clock: ArrayLike | None = None) -> IntArray:
     """New track ids that cut every track into pieces of at most ``max_frames`` frames
     (counted from the track's first frame), each piece its own track; ``None`` keeps them.
+
+    With ``clock`` (``(F,)``, non-decreasing, indexed by frame) a piece spans at most
+    ``max_frames`` of its ticks instead of frames (e.g. a clock that barely ticks while the
+    robot stands still: :func:`apcc_graph.estimation.image_motion.motion_clock`).
 
     The ids stay non-negative and distinct between pieces of different tracks.
     """
@@ -121,10 +126,11 @@ def cut_tracks(frames: ArrayLike, track_ids: ArrayLike, max_frames: int | None) 
         return ids.copy()
     if max_frames < 1:
         raise ValueError(f"max_frames = {max_frames}: expected at least 1 frame")
+    time = frames.astype(float) if clock is None else np.asarray(clock, dtype=float)[frames]
     unique, inverse = np.unique(ids, return_inverse=True)
-    first = np.full(len(unique), np.iinfo(np.int64).max)
-    np.minimum.at(first, inverse, frames)
-    piece = (frames - first[inverse]) // max_frames
+    first = np.full(len(unique), np.inf)
+    np.minimum.at(first, inverse, time)
+    piece = np.floor((time - first[inverse]) / max_frames + 1e-9).astype(np.int64)
     return inverse * (int(piece.max()) + 1) + piece
 
 

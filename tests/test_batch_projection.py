@@ -19,6 +19,7 @@ from apcc_graph.estimation import batch_solve as batch_module
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate, projection_solve
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import CameraTerms
+from apcc_graph.estimation.image_motion import motion_clock
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 from apcc_graph.estimation.options import BatchOptions, Robustness
 from apcc_graph.estimation.robust import gnc_schedule
@@ -189,7 +190,8 @@ def test_outlier_decisions_match_the_simulated_outliers(
     decided, true = [], []
     for terms in built[0]:
         trk = seq.tracks[terms.camera]
-        ids = cut_tracks(trk.frames, trk.track_ids, options.max_track_frames)
+        ids = cut_tracks(trk.frames, trk.track_ids, options.max_track_frames,
+                         motion_clock(seq, options.threshold_px, still_tick=options.still_tick))
         flags = dict(zip(zip(trk.frames.tolist(), ids.tolist(), strict=True),
                          sim.outliers[terms.camera].tolist(), strict=True))
         for chunk in terms.chunks:

@@ -21,6 +21,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.estimation.image_motion import motion_clock
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_tls_weights
 from apcc_graph.factors.projection import (
@@ -48,11 +49,13 @@ __all__ = ["CameraTerms", "calibration_factors", "calibration_from", "camera_obs
 
 def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
                         min_rows: int = 2, frames: range | None = None,
-                        max_track_frames: int | None = None) -> TrackObservations | None:
+                        max_track_frames: int | None = None,
+                        clock: FloatArray | None = None) -> TrackObservations | None:
     """Camera ``cam``'s observations as tracks (undistorted, whitened by ``noise_px``).
 
     Tracks longer than ``max_track_frames`` are cut into pieces with points of their own
-    (:func:`apcc_graph.factors.track_points.cut_tracks`); pieces seen in fewer than ``min_rows``
+    (:func:`apcc_graph.factors.track_points.cut_tracks`, on ``clock`` when given: ``(F,)``
+    ticks per frame); pieces seen in fewer than ``min_rows``
     frames are left out; ``None`` when nothing is left. ``frames`` restricts the rows to a range of
     frames.
     """
@@ -60,7 +63,7 @@ def camera_observations(sequence: RobotSequence, cam: int, noise_px: float,
     if camera is None or cam not in sequence.tracks:
         return None
     tracks = sequence.tracks[cam]
-    ids = cut_tracks(tracks.frames, tracks.track_ids, max_track_frames)
+    ids = cut_tracks(tracks.frames, tracks.track_ids, max_track_frames, clock)
     keep = np.ones(len(tracks), dtype=bool)
     if frames is not None:
         keep &= (tracks.frames >= frames.start) & (tracks.frames < frames.stop)
@@ -78,10 +81,29 @@ def observed_cameras(sequence: RobotSequence, options: GraphOptions) -> list[Tra
     """Every camera's observations as ``options`` build them (:func:`camera_observations`
     with its noise, shortest tracks and longest pieces); cameras left with none are left
     out."""
+    clock = None
+    cut = options.max_track_frames
+    if cut is not None and options.still_tick is not None and _longest_track(sequence) > cut:
+        clock = motion_clock(sequence, options.threshold_px, still_tick=options.still_tick)
     found = (camera_observations(sequence, cam, options.threshold_px, options.min_track_rows,
-                                 max_track_frames=options.max_track_frames)
+                                 max_track_frames=options.max_track_frames, clock=clock)
              for cam in sequence.robot.camera_segments)
     return [obs for obs in found if obs is not None]
+
+
+def _longest_track(sequence: RobotSequence) -> int:
+    """The most frames any track of the sequence spans (0 without tracks)."""
+    longest = 0
+    for tracks in sequence.tracks.values():
+        if len(tracks) == 0:
+            continue
+        ids, inverse = np.unique(tracks.track_ids, return_inverse=True)
+        first = np.full(len(ids), np.iinfo(np.int64).max)
+        last = np.full(len(ids), -1)
+        np.minimum.at(first, inverse, tracks.frames)
+        np.maximum.at(last, inverse, tracks.frames)
+        longest = max(longest, int(np.max(last - first)) + 1)
+    return longest
 
 
 def camera_chain(robot: Robot, cam: int, bending: Bending,

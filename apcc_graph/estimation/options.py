@@ -16,6 +16,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from apcc_graph.estimation.image_motion import STILL_TICK
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 
 
@@ -37,6 +38,11 @@ class GraphOptions:
         max_track_frames: longer tracks are cut into pieces of this many frames, each with a
             point of its own, so that no factor spans more frames than this (its dense block
             grows with the square of its span); ``None`` keeps whole tracks.
+        still_tick: what a frame in which no camera's images moved counts towards
+            ``max_track_frames`` (a moving frame counts 1): a piece born while the robot
+            stands still lasts until it has moved, so that its point has parallax
+            (:func:`apcc_graph.estimation.image_motion.motion_clock`); ``None`` counts every
+            frame as 1.
         model_sigma: how far a real segment's tip may depart from its kinematic model:
             ``(position in metres, rotation in radians)``, the standard deviation of each
             component of the tip pose's departure in the tip's frame (docs/estimation.md,
@@ -51,6 +57,7 @@ class GraphOptions:
     frames_per_chunk: int = 15
     min_track_rows: int = 2
     max_track_frames: int | None = 150
+    still_tick: float | None = STILL_TICK
     model_sigma: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
@@ -68,6 +75,9 @@ class GraphOptions:
                                                   and self.motion_sigma > 0.0):
             raise ValueError(f"GraphOptions.motion_sigma = {self.motion_sigma!r}: expected a "
                              "finite value > 0 (rad/sqrt(s)) or None")
+        if self.still_tick is not None and not 0.0 < self.still_tick <= 1.0:
+            raise ValueError(f"GraphOptions.still_tick = {self.still_tick!r}: expected None or "
+                             "a value in (0, 1]")
         if self.frames_per_chunk < 1 or self.min_track_rows < 2:
             raise ValueError("GraphOptions: frames_per_chunk >= 1 and min_track_rows >= 2 "
                              f"expected, got {self.frames_per_chunk}, {self.min_track_rows}")

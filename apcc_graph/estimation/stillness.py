@@ -30,42 +30,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from apcc_graph.estimation.image_motion import SPREAD_LIMIT, flow_statistics
 from apcc_graph.estimation.projection_tracks import Rows
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.model.arrays import FloatArray
-
-MAD_TO_SIGMA = 1.4826
-"""Median absolute deviation to standard deviation, for normal samples."""
-
-CHI2_2_MEDIAN = 2.0 * math.log(2.0)
-"""Median of the chi-square distribution with 2 degrees of freedom."""
-
-SPREAD_LIMIT = 4.0
-"""A camera moved if its median squared displacement is this many times that of noise alone."""
-
-
-def flow_statistics(anchor: Rows, rows: Rows, min_tracks: int = 8
-                    ) -> dict[int, tuple[float, float]]:
-    """Per camera with at least ``min_tracks`` tracks in both frames: the coherent-flow
-    chi-square (about chi-square with 2 degrees of freedom when nothing moved) and the median
-    squared displacement over that of noise alone (about 1 then); see the module docstring."""
-    out = {}
-    for cam, (ids, xy, whiten) in rows.items():
-        if cam not in anchor:
-            continue
-        ids0, xy0, _ = anchor[cam]
-        common, i0, i1 = np.intersect1d(ids0, ids, assume_unique=True, return_indices=True)
-        n = len(common)
-        if n < min_tracks:
-            continue
-        d = np.einsum("nij,nj->ni", whiten[i1], xy[i1] - xy0[i0])  # noise: N(0, 2 I)
-        median = np.median(d, axis=0)
-        scale = MAD_TO_SIGMA * np.median(np.abs(d - median), axis=0)  # per coordinate
-        # the median of n normal samples has variance (pi / 2) sigma^2 / n
-        coherent = float(np.sum(n * (median / np.maximum(scale, 1e-12)) ** 2) / (math.pi / 2))
-        spread = float(np.median(np.sum(d * d, axis=1)) / 2.0 / CHI2_2_MEDIAN)
-        out[cam] = (coherent, spread)
-    return out
 
 
 @dataclass
