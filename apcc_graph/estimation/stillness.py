@@ -10,16 +10,11 @@ stops, so that the window still holds the moving frames before the stillness and
 moving frame afterwards joins them as if one frame interval had passed (the motion prior then
 spans the motion of that one interval, which is all the robot did).
 
-The test, per camera, against the *anchor* (the first frame of the still run): for the ``n``
-tracks seen in both frames, the whitened displacements ``d = W (x_new - x_anchor)`` (``W`` the
-whitening of one observation). Motion of the camera moves its points together, noise does not:
-the coordinates' medians ``m`` over the tracks, against their spread ``s`` (1.4826 times the
-median absolute deviation, robust to outliers), give ``n |m / s|^2 / (pi / 2)``, about
-chi-square with 2 degrees of freedom when nothing moved (the median of ``n`` normal samples has
-variance ``(pi / 2) s^2 / n``). A frame is still when that stays below ``chi2`` in every
-camera with at least ``min_tracks`` common tracks (and the median ``|d|^2`` below
-``SPREAD_LIMIT`` times that of noise alone, which catches a roll about the optical axis), at
-least one camera has that many, and the robot's base did not move. Comparing against the anchor
+The test, per camera, against the *anchor* (the first frame of the still run), is the coherent
+flow of :func:`~apcc_graph.estimation.image_motion.flow_statistics`: a frame is still when its
+chi-square stays below ``chi2`` in every camera with at least ``min_tracks`` tracks in common
+(and the spread below ``SPREAD_LIMIT``, which catches a roll about the optical axis), at least
+one camera has that many, and the robot's base did not move. Comparing against the anchor
 rather than the previous frame lets slow motion accumulate until it shows.
 """
 
@@ -30,7 +25,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from apcc_graph.estimation.image_motion import SPREAD_LIMIT, flow_statistics
+from apcc_graph.estimation.image_motion import CHI2, SPREAD_LIMIT, flow_statistics
 from apcc_graph.estimation.projection_tracks import Rows
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.model.arrays import FloatArray
@@ -51,7 +46,7 @@ class StillFrames:
     """
 
     settle: int = 10
-    chi2: float = 18.4
+    chi2: float = CHI2
     min_tracks: int = 8
     paused: float = 0.0
     count: int = 0
