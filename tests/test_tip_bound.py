@@ -3,6 +3,7 @@ the per-angle bound, the lag's ordering and the ends' Jacobian."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,6 +19,7 @@ from apcc_graph.evaluation.sequence_bound import (
 )
 from apcc_graph.evaluation.tip_bound import end_jacobians, tip_bound
 from apcc_graph.model.parameterisation import Bending
+from apcc_graph.model.sequence import Sequence, Tracks
 from apcc_graph.simulation.simulator import Simulation, simulate
 
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
@@ -122,3 +124,23 @@ def test_bad_arguments_are_refused(sim: Simulation) -> None:
         tip_bound(sim, 1.0, PRIOR, step=0)
     with pytest.raises(ValueError, match="lag_frames"):
         tip_bound(sim, 1.0, PRIOR, lag_frames=-1)
+
+
+def test_a_frame_no_camera_saw_leaves_the_bound_infinite(robot: Robot) -> None:
+    """A frame without observations is undetermined (no motion prior in the bound): the whole
+    bound is inf rather than an exception, and the lag bound of the frames before it is not."""
+    sim = simulate(robot, 10, noise_px=1.0, seed=6, scene="room", n_points=400)
+    seq, blind = sim.sequence, 6
+    keep = {c: t.frames != blind for c, t in seq.tracks.items()}
+    tracks = {c: Tracks(t.frames[keep[c]], t.track_ids[keep[c]], t.uv[keep[c]])
+              for c, t in seq.tracks.items()}
+    cut = dataclasses.replace(
+        sim, sequence=Sequence(seq.robot, seq.timestamps, tracks, seq.world_T_base, seq.thetas,
+                               seq.psis),
+        landmarks={c: sim.landmarks[c][keep[c]] for c in keep},
+        clean_uv={c: sim.clean_uv[c][keep[c]] for c in keep},
+        outliers={c: sim.outliers[c][keep[c]] for c in keep})
+    assert np.all(np.isinf(tip_bound(cut, 1.0, PRIOR, step=3).sigmas))
+    lagged = tip_bound(cut, 1.0, PRIOR, lag_frames=1, step=1)
+    assert np.all(np.isfinite(lagged.sigmas[lagged.frames < blind - 1]))
+    assert np.all(np.isinf(lagged.sigmas[lagged.frames >= blind - 1]))

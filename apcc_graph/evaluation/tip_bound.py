@@ -101,11 +101,14 @@ def tip_bound(simulation: Simulation, noise_px: float, theta0_sigma: float | Non
     truth = true_parameters(simulation, spatial).reshape(n_frames, P)
     frames = np.arange(0, n_frames, step, dtype=np.int64)
     whole = None
-    if lag_frames is None:
-        whole = scipy.linalg.cholesky(fisher_information(
-            simulation, noise_px, theta0_sigma, spatial=spatial), lower=False,
-            check_finite=False)
     sigmas = np.full((len(frames), len(segments)), math.inf)
+    if lag_frames is None:
+        try:
+            whole = scipy.linalg.cholesky(fisher_information(
+                simulation, noise_px, theta0_sigma, spatial=spatial), lower=False,
+                check_finite=False)
+        except np.linalg.LinAlgError:
+            return TipBound(frames, sigmas, None)  # some frame is undetermined: inf
     for i, f in enumerate(frames.tolist()):
         if whole is not None:
             U = whole
