@@ -163,10 +163,10 @@ _MISTAKES = {
         "unknown key",
     ),
     "output-under-a-file": (_output_under_a_file, "blocker"),
-    "model-noise-for-the-smoother": (
-        lambda tmp: ["estimate", "data/sequences/planar_three", "--method", "smoother",
+    "model-noise-for-the-chain": (
+        lambda tmp: ["estimate", "data/sequences/planar_three", "--method", "chain",
                      "--model-sigma", "1,0.5", "--out", str(tmp / "out")],
-        "--model-sigma applies to --method batch",
+        "--model-sigma applies to --method batch or smoother",
     ),
 }
 
@@ -313,7 +313,7 @@ def test_version_in_process(capsys: pytest.CaptureFixture[str]) -> None:
     assert capsys.readouterr().out.strip() == f"apcc-graph {apcc_graph.__version__}"
 
 
-def test_model_sigma_reaches_the_batch_in_metres_and_radians() -> None:
+def test_model_sigma_reaches_the_batch_and_smoother_in_metres_and_radians() -> None:
     from apcc_graph.cli.estimate import _options
     from apcc_graph.cli.main import build_parser
 
@@ -321,6 +321,9 @@ def test_model_sigma_reaches_the_batch_in_metres_and_radians() -> None:
                                       "--model-sigma", "2,0.5", "--out", "x"])
     graph = _options(args)["graph"]
     assert graph.model_sigma == pytest.approx((2e-3, math.radians(0.5)))
+    args = build_parser().parse_args(["estimate", "data/sequences/planar_three", "--method",
+                                      "smoother", "--model-sigma", "3,1", "--out", "x"])
+    assert _options(args)["graph"].model_sigma == pytest.approx((3e-3, math.radians(1.0)))
     args = build_parser().parse_args(["bench", "real", "--model-sigma", "1.5,0.25"])
     assert args.model_sigma == pytest.approx((1.5e-3, math.radians(0.25)))
 

@@ -83,15 +83,12 @@ def test_small_model_noise_is_as_good_as_the_exact_batch_on_model_exact_motion()
     assert np.all(errors > 0.3 * np.mean(noise.sigmas, axis=0))
 
 
-def test_pose_solve_refuses_the_exact_model_and_the_smoother_refuses_model_noise() -> None:
+def test_pose_solve_refuses_the_exact_model_and_self_calibration_refuses_model_noise() -> None:
     model, seq, truth, floor = _replay(30, exact=True)
     bending = Bending.free(model.segments)
     start = bending.vector(floor.thetas, floor.psis)
     with pytest.raises(ValueError, match="model_sigma"):
         pose_solve(seq, start, start[0], GraphOptions(), bending=bending)
-    with pytest.raises(ValueError, match="model_sigma"):
-        estimate(seq, method="smoother", theta0=floor.thetas[0], psi0=floor.psis[0],
-                 spatial=True, graph=GraphOptions(model_sigma=MODEL_SIGMA))
     with pytest.raises(ValueError, match="exact model"):
         batch_estimate(seq, floor.thetas[0], psi0=floor.psis[0], spatial=True,
                        calibrate=True, options=GraphOptions(model_sigma=MODEL_SIGMA))

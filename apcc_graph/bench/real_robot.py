@@ -3,8 +3,9 @@
 
 For each recording: calibrate the robot from its backbone poses (k, delta_max, marker offsets),
 replay the measured motion with tip cameras seeing a simulated room, and estimate with the chain,
-the batch (exact model), the batch with model error as noise (``noise``) and the smoother from
-the floor's first configuration (the start given, with a prior). A last row, ``noise@floor``, is
+the batch (exact model), the batch with model error as noise (``noise``), the smoother and the
+smoother with model error as noise (``smoother-noise``) from the floor's first configuration
+(the start given, with a prior). A last row, ``noise@floor``, is
 a yardstick rather than an estimator: the batch with model noise started at the floor's bends of
 every frame, i.e. what the model-noise problem gives when its start is in the right basin.
 Each estimate's tips are compared with the measured tips beside the floor (the model's tips at the
@@ -60,8 +61,11 @@ PEERS = {"smoother-qr": SmootherOptions(factorization="QR"),
          "smoother-gate": SmootherOptions(rotation_gate=0.02)}
 """Smoother variants the bench can run beside the default: ``smoother-qr`` factors its window
 by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad)."""
-METHODS = ("chain", "batch", "noise", "smoother", "noise@floor", *PEERS)
-"""Every method the bench knows; the :data:`PEERS` are not in the default list."""
+METHODS = ("chain", "batch", "noise", "smoother", "smoother-noise", "noise@floor", *PEERS)
+"""Every method the bench knows (``smoother-noise``: the smoother with model error as noise);
+the :data:`PEERS` are not in the default list."""
+SMOOTHERS = ("smoother", "smoother-noise", *PEERS)
+"""The methods whose yardstick on the model-exact motion is the lag bound."""
 MODEL_SIGMA = (1e-3, math.radians(0.5))
 """The benchmark's model noise (position m, rotation rad) for ``noise`` and ``noise@floor``."""
 MIN_STRETCH = 2.0
@@ -126,11 +130,12 @@ def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, n
                               options=GraphOptions(threshold_px=noise_px,
                                                    theta0_sigma=start_sigma,
                                                    model_sigma=model_sigma))
-    graph = GraphOptions(model_sigma=model_sigma) if method == "noise" else None
-    if method in PEERS:
+    graph = (GraphOptions(model_sigma=model_sigma) if method in ("noise", "smoother-noise")
+             else None)
+    if method in SMOOTHERS and method != "smoother":
         return estimate(seq, method="smoother", spatial=True, theta0=floor.thetas[0],
                         psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px,
-                        settings=PEERS[method])
+                        settings=PEERS.get(method), graph=graph)
     return estimate(seq, method="batch" if method == "noise" else method, spatial=True,
                     theta0=floor.thetas[0], psi0=floor.psis[0], theta0_sigma=start_sigma,
                     noise_px=noise_px, graph=graph)
@@ -141,7 +146,7 @@ def _bounds(seq: Sequence, methods: tuple[str, ...]) -> dict[str, int | None]:
     and, with a smoother, ``lag bound`` (its final estimates', with its default lag in
     frames)."""
     out: dict[str, int | None] = {"bound": None}
-    if any(m == "smoother" or m in PEERS for m in methods):
+    if any(m in SMOOTHERS for m in methods):
         dt = float(np.median(np.diff(seq.timestamps)))
         out["lag bound"] = round(SmootherOptions().lag / dt)
     return out
@@ -214,7 +219,7 @@ def _yardstick(rows: list[RealRow], row: RealRow) -> np.ndarray | None:
     if row.version != "model-exact":
         name = "floor"
     else:
-        name = "lag bound" if row.method == "smoother" or row.method in PEERS else "bound"
+        name = "lag bound" if row.method in SMOOTHERS else "bound"
     found = [r.position for r in rows if r.recording == row.recording and r.method == name
              and (r.version == row.version or name == "floor")]
     return found[0] if found else None

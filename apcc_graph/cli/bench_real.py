@@ -22,7 +22,8 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         description="For each recording of a real two-segment robot (data/real_tdcr): "
         "calibrate the robot from its backbone poses, replay the measured motion with tip "
         "cameras seeing a simulated room (1 px, 10%% outliers), estimate with the chain, the "
-        "batch, the batch with model error as noise and the smoother from the floor's first "
+        "batch, the batch with model error as noise, the smoother and the smoother with "
+        "model error as noise (smoother-noise) from the floor's first "
         "configuration (2 deg prior), and the yardstick noise@floor (the batch with model noise "
         "started at the floor's bends of every frame), and print "
         "the RMS tip errors beside the floor (the model's best fit to the measured tips); then "
@@ -34,7 +35,7 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                     help="the robot to calibrate (default: %(default)s)")
     rb.add_argument("--recordings", default="slow_free_space,impulse_2",
                     help="recordings, comma-separated (default: %(default)s)")
-    rb.add_argument("--methods", default="chain,batch,noise,smoother,noise@floor",
+    rb.add_argument("--methods", default="chain,batch,noise,smoother,smoother-noise,noise@floor",
                     help="estimators, comma-separated (default: %(default)s); peers to add: "
                     "smoother-qr (the smoother factoring its window by QR), smoother-gate "
                     "(the smoother with the model-free outlier gate)")

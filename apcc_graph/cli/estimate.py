@@ -89,7 +89,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      help="pixel noise of the tracks, standard deviation per coordinate "
                      "(default: %(default)s); sets the outlier threshold and the sigmas")
     est.add_argument("--model-sigma", type=model_sigma, default=None, metavar="MM,DEG",
-                     help="model error as noise (--method batch): how far a segment's tip may "
+                     help="model error as noise (--method batch or smoother): how far a "
+                     "segment's tip may "
                      "depart from its kinematic model, position in mm and rotation in degrees, "
                      "e.g. 1,0.5 (default: the exact model); docs/estimation.md")
     est.add_argument("--calibrate", nargs="?", const="all", default=None,
@@ -202,8 +203,9 @@ def _options(args: argparse.Namespace) -> dict:
         raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of pixels")
     options["noise_px"] = args.noise_px
     if args.model_sigma is not None:
-        if args.method != "batch":
-            raise UserError("--model-sigma applies to --method batch only")
+        if args.method == "chain":
+            raise UserError("--model-sigma applies to --method batch or smoother (the chain "
+                            "has no model noise)")
         options["graph"] = GraphOptions(model_sigma=args.model_sigma)
     if args.calibrate:
         if args.method != "batch":

@@ -28,7 +28,7 @@ timestamps as a mapping from key to seconds.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import gtsam
 
@@ -43,9 +43,10 @@ class FixedLagISAM2:
         slack: seconds (default a quarter of the lag; 0: marginalise at every update).
     """
 
-    def __init__(self, lag: float, params: gtsam.ISAM2Params, slack: float | None = None
-                 ) -> None:
+    def __init__(self, lag: float, params: gtsam.ISAM2Params, slack: float | None = None,
+                 groups: Callable[[int], int] | None = None) -> None:
         self.lag = float(lag)
+        self.groups = groups
         self.slack = 0.25 * self.lag if slack is None else float(slack)
         self.isam = gtsam.ISAM2(params)
         self.stamps: dict[int, float] = {}  # key -> seconds, for every variable held
@@ -65,12 +66,21 @@ class FixedLagISAM2:
         leaving = [] if oldest >= now - self.lag - self.slack else sorted(
             k for k, s in self.stamps.items() if s < now - self.lag)
         constrained = extra = None
-        if leaving:
+        if leaving or self.groups is not None:
             constrained = gtsam.KeyGroupMap()
             for key in leaving:  # the first group is eliminated first
                 constrained.insert2(key, 0)
-            for key in sorted(self.stamps):
-                constrained.insert2(key, 1)  # no effect on the keys already in group 0
+            if self.groups is not None:  # every kept key in its group, after the leaving
+                # ccolamd needs every label below the number of keys it orders: at least the
+                # new factors' keys (and every key when some leave, all re-eliminated)
+                n = len(self.stamps) if leaving else (graph or gtsam.NonlinearFactorGraph()
+                                                      ).keys().size()
+                for key in sorted(self.stamps):
+                    constrained.insert2(key, min(1 + self.groups(key), max(n - 1, 0)))
+            else:
+                for key in sorted(self.stamps):
+                    constrained.insert2(key, 1)  # no effect on the keys already in group 0
+        if leaving:
             extra = gtsam.KeyList()
             for key in sorted(held):
                 extra.push_back(key)

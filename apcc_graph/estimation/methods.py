@@ -201,9 +201,6 @@ def _run(sequence: Sequence, method: str, theta0: ArrayLike, psi0: ArrayLike | N
                               psi0=psi0, spatial=spatial)
     from apcc_graph.estimation.smoother_runs import smoother_estimate
 
-    if graph.model_sigma is not None:
-        raise ValueError("GraphOptions.model_sigma (model error as noise) is the batch's so "
-                         "far; the smoother has the exact model: leave it None")
     # estimate() tests the whole recording afterwards: not block by block as well
     return smoother_estimate(sequence, theta0, options=graph,
                              settings=replace(settings, misfit_seconds=None),

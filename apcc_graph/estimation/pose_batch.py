@@ -41,7 +41,8 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
 
-__all__ = ["POINT_PRIOR_SIGMA", "forward_tips", "point_key", "pose_solve", "tip_key"]
+__all__ = ["POINT_PRIOR_SIGMA", "forward_tips", "point_key", "pose_solve",
+           "square_root_information", "tip_key"]
 
 MAX_SEGMENTS = 64
 """Tip keys leave room for this many segments per frame."""
@@ -73,7 +74,7 @@ def forward_tips(bending: Bending, x: FloatArray, bases: FloatArray) -> FloatArr
     return out
 
 
-def _square_root_information(W: FloatArray) -> FloatArray:
+def square_root_information(W: FloatArray) -> FloatArray:
     """``(N, 2, 2)`` upper-triangular ``R`` with ``R^T R = W^T W`` (the same whitened norm as
     ``W``, in the form gtsam's ``SqrtInformation`` expects)."""
     return np.swapaxes(np.linalg.cholesky(np.swapaxes(W, -1, -2) @ W), -1, -2)
@@ -107,7 +108,7 @@ def _cameras(sequence: Sequence, options: GraphOptions) -> list[_Camera]:
         weights = pair_inliers(obs.frames, obs.tracks, bearings).astype(float)
         camera = sequence.robot.cameras[obs.camera]
         assert camera is not None
-        out.append(_Camera(obs, camera.tip_T_cam, _square_root_information(obs.whiten),
+        out.append(_Camera(obs, camera.tip_T_cam, square_root_information(obs.whiten),
                            weights))
     return out
 

@@ -11,14 +11,15 @@ from numpy.typing import ArrayLike
 from tqdm import tqdm
 
 from apcc_graph.estimation.options import GraphOptions, Robustness
+from apcc_graph.estimation.pose_smoother import PoseSmoother
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.model.sequence import Sequence
 
 
-def stream_estimate(smoother: FixedLagSmoother, sequence: Sequence, progress: bool = False
-                    ) -> Estimate:
+def stream_estimate(smoother: FixedLagSmoother | PoseSmoother, sequence: Sequence,
+                    progress: bool = False) -> Estimate:
     """Feed a recorded sequence to ``smoother`` frame by frame; each frame's final estimate.
 
     Ground-truth columns are never read. The estimate's ``method`` is ``"smoother"`` and its
@@ -51,7 +52,8 @@ def smoother_estimate(
     spatial: bool = False,
 ) -> Estimate:
     """Run :class:`~apcc_graph.estimation.smoother.FixedLagSmoother` over a recorded sequence,
-    frame by frame.
+    frame by frame (with ``options.model_sigma``, the smoother with model error as noise:
+    :class:`~apcc_graph.estimation.pose_smoother.PoseSmoother`).
 
     Args:
         sequence: the sequence.
@@ -67,7 +69,8 @@ def smoother_estimate(
     Returns:
         The estimate, ``method = "smoother"``.
     """
-    smoother = FixedLagSmoother(sequence.robot, options=options, theta0=theta0,
-                                settings=settings, spatial=spatial, psi0=psi0,
-                                robustness=robustness)
+    kind = (FixedLagSmoother if options is None or options.model_sigma is None
+            else PoseSmoother)
+    smoother = kind(sequence.robot, options=options, theta0=theta0, settings=settings,
+                    spatial=spatial, psi0=psi0, robustness=robustness)
     return stream_estimate(smoother, sequence, progress)

@@ -101,17 +101,22 @@ def component_sigmas(bending: Bending, blocks: FloatArray) -> FloatArray:
 
 
 def new_gtsam_smoother(lag: float, relinearize_threshold: float,
-                       factorization: str = "CHOLESKY", reproducible: bool = True
-                       ) -> WindowSolver:
+                       factorization: str = "CHOLESKY", reproducible: bool = True,
+                       groups: Callable[[int], int] | None = None) -> WindowSolver:
     """iSAM2 over the last ``lag`` seconds, factoring the window's linear system by
     ``factorization`` (``"CHOLESKY"`` or ``"QR"``): marginalising the same way on every run
-    (:mod:`~apcc_graph.estimation.fixed_lag`), or gtsam's fixed-lag smoother."""
+    (:mod:`~apcc_graph.estimation.fixed_lag`), or gtsam's fixed-lag smoother; ``groups``
+    orders the elimination (key -> group, lower first; the reproducible one only)."""
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(relinearize_threshold)
     params.relinearizeSkip = 1
     params.findUnusedFactorSlots = True
     params.setFactorization(factorization)
-    return FixedLagISAM2(lag, params) if reproducible else GtsamFixedLag(lag, params)
+    if groups is not None and not reproducible:
+        raise ValueError("new_gtsam_smoother: an elimination order needs the reproducible "
+                         "smoother")
+    return (FixedLagISAM2(lag, params, groups=groups) if reproducible
+            else GtsamFixedLag(lag, params))
 
 
 def key_stamps(stamps: Iterable[tuple[int, float]] = ()) -> dict[int, float]:
