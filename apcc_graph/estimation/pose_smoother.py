@@ -13,10 +13,12 @@ over the last ``lag`` seconds:
   (:mod:`~apcc_graph.estimation.pose_points`, which also holds the model-free outlier
   decisions).
 
-A new frame starts at the motion's prediction, its tips at the model's tips there moved by the
-previous frame's departure from the model (the model error changes slowly). gtsam's iSAM2 holds
-the window (:mod:`~apcc_graph.estimation.fixed_lag`). A gtsam failure restarts the window at the
-last estimate (:class:`~apcc_graph.estimation.window.RestartWarning`).
+A new frame starts at the two-frame front end's answer from the previous frame's estimate, its
+tips at the model's tips there moved by the previous frame's departure from the model (the
+model error changes slowly); the points a new frame's rows complete are made in the same
+update. gtsam's iSAM2 holds the window (:mod:`~apcc_graph.estimation.fixed_lag`). A gtsam
+failure restarts the window at the last estimate
+(:class:`~apcc_graph.estimation.window.RestartWarning`).
 
 What the exact smoother does and this one does not (yet): the still-frame hold, the
 re-acquisition after a blackout or a pause, the check of the start, the residual test of the
