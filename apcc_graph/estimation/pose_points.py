@@ -134,7 +134,7 @@ class PosePoints:
         frame -> ``(S, 4, 4)`` tip poses of the frames in the window, ``due`` the frames about to
         leave it; ``force``: every track with two kept rows. Rows of frames not in ``tips`` are
         dropped."""
-        ready: dict[int, list[tuple[int, list[_Row], bool]]] = {}
+        ready: dict[int, list[tuple[int, list[_Row]]]] = {}
         for (cam, i), rows in list(self.held.items()):
             rows = [r for r in rows if r.frame in tips]
             kept = [r for r in rows if r.verdict != 0]
@@ -145,7 +145,7 @@ class PosePoints:
             must = force or rows[0].frame in due
             if len(kept) >= 2 and (must or (
                     len(kept) >= MIN_ROWS and self._turn(cam, kept, tips) >= PARALLAX)):
-                ready.setdefault(cam, []).append((i, kept, must))
+                ready.setdefault(cam, []).append((i, kept))
             elif must:  # too few rows: the leaving ones are lost
                 self._drop(cam, i, [r for r in rows if r.frame not in due])
         for cam, tracks in sorted(ready.items()):
@@ -170,11 +170,10 @@ class PosePoints:
 
     def _triangulate(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                      stamps: dict[int, float], t: float, cam: int,
-                     tracks: list[tuple[int, list[_Row], bool]], tips: Mapping[int, FloatArray]
+                     tracks: list[tuple[int, list[_Row]]], tips: Mapping[int, FloatArray]
                      ) -> None:
-        """Points of ``tracks`` (id, kept rows, whether it must be made now) at the current
-        tips, with their factors."""
-        rows = [(i, r) for i, kept, _ in tracks for r in kept]
+        """Points of ``tracks`` (id, kept rows) at the current tips, with their factors."""
+        rows = [(i, r) for i, kept in tracks for r in kept]
         obs = TrackObservations.build(cam, [r.frame for _, r in rows], [i for i, _ in rows],
                                       np.array([r.xy for _, r in rows]),
                                       np.array([r.whiten for _, r in rows]))
