@@ -100,10 +100,13 @@ def test_the_smoother_with_model_noise_is_chosen_by_the_model_sigma_and_is_repro
     assert first.sigmas.tobytes() == again.sigmas.tobytes()
 
 
-def test_the_exact_model_is_refused() -> None:
+def test_the_exact_model_is_refused_and_the_chain_refuses_model_noise() -> None:
     model, seq, truth, floor = fast_stretch_replay(2, exact=False)
     with pytest.raises(ValueError, match="model_sigma"):
         PoseSmoother(seq.robot, options=GraphOptions())
+    with pytest.raises(ValueError, match="the chain has the exact model"):
+        estimate(seq, method="chain", theta0=floor.thetas[0], psi0=floor.psis[0],
+                 spatial=True, graph=GraphOptions(model_sigma=MODEL_SIGMA))
 
 
 def test_a_gtsam_failure_restarts_the_window_at_the_last_estimate() -> None:

@@ -41,6 +41,8 @@ class FixedLagISAM2:
             is marginalised, at the latest once it is ``slack`` seconds past that.
         params: iSAM2's parameters.
         slack: seconds (default a quarter of the lag; 0: marginalise at every update).
+        groups: the elimination order at every update: key -> group (lower first, after the
+            leaving variables); ``None``: gtsam's own order between marginalisations.
     """
 
     def __init__(self, lag: float, params: gtsam.ISAM2Params, slack: float | None = None,

@@ -184,6 +184,10 @@ def _run(sequence: Sequence, method: str, theta0: ArrayLike, psi0: ArrayLike | N
     if isinstance(settings, ChainOptions):
         from apcc_graph.estimation.chain import chain_estimate
 
+        if graph.model_sigma is not None:
+            raise ValueError("GraphOptions.model_sigma (model error as noise) applies to the "
+                             "batch and the smoother; the chain has the exact model")
+
         return chain_estimate(sequence, theta0, graph.threshold_px, settings.confidence,
                               settings.seed, progress, psi0=psi0, spatial=spatial)
     if isinstance(settings, BatchOptions):
