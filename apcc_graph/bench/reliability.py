@@ -87,6 +87,8 @@ def fault_cases(frames: int = 450, seed: int = 1) -> list[FaultCase]:
         ("none", lambda: clean, at, at),
         ("camera 2 blind for 1 s", lambda: faults.blind(clean, [1], at, at + SECOND),
          at, at + SECOND),
+        ("camera 3 blind for 3 s", lambda: faults.blind(clean, [2], at, at + 3 * SECOND),
+         at, at + 3 * SECOND),
         ("all cameras blind for 1 s", lambda: faults.blind(clean, [0, 1, 2], at, at + SECOND),
          at, at + SECOND),
         ("camera 2 never sees anything", lambda: faults.without_camera(clean, 1), 0, frames),

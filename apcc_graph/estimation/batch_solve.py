@@ -176,7 +176,8 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
                      marginals: bool = True, progress: bool = False,
                      calibration_sigmas: tuple[float, float] | None = None,
                      bending: Bending | None = None,
-                     mount_sigmas: tuple[float, float] | None = None) -> ProjectionSolution:
+                     mount_sigmas: tuple[float, float] | None = None,
+                     start_sigmas: FloatArray | None = None) -> ProjectionSolution:
     """Frame vectors, covariances and inliers of the projection batch, started at
     ``initial``.
 
@@ -200,6 +201,8 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         mount_sigmas: estimate each observed camera's mounting too, with priors of these
             standard deviations (radians, metres; :func:`mount_factors`) around the robot's;
             ``None`` holds the mounts.
+        start_sigmas: ``(dim,)`` the start prior's sigma per component (radians; default
+            ``options.theta0_sigma`` on each).
     """
     robustness = Robustness() if robustness is None else robustness
     inlier_sigmas = robustness.inlier_sigmas
@@ -213,7 +216,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         robot, calibrate, [t.camera for t in terms] if mount_sigmas is not None else [])
     cal = None if cal.empty else cal
     graph = _graph(sequence, terms, theta0, options, calibration_sigmas, bending,
-                   mount_sigmas)
+                   mount_sigmas, start_sigmas)
     thetas = np.array(initial, dtype=float)
     # One bar over every long stage: triangulation, the outlier rounds, the marginals.
     bar = tqdm(total=max_final_rounds + 2, desc="batch", disable=not progress, leave=False)
@@ -268,14 +271,15 @@ def _uncertainty(graph: gtsam.NonlinearFactorGraph, x: FloatArray, frames: Seque
 
 def _graph(sequence: Sequence, terms: list[CameraTerms], theta0: FloatArray | None,
            options: GraphOptions, calibration_sigmas: tuple[float, float] | None,
-           bending: Bending, mount_sigmas: tuple[float, float] | None = None
-           ) -> gtsam.NonlinearFactorGraph:
+           bending: Bending, mount_sigmas: tuple[float, float] | None = None,
+           start_sigmas: FloatArray | None = None) -> gtsam.NonlinearFactorGraph:
     """The projection batch's graph: priors, calibration priors (when ``calibration_sigmas``
     are given), mount priors (when ``mount_sigmas`` are), then every camera's projection
     factors."""
     graph = gtsam.NonlinearFactorGraph()
     frames = range(sequence.n_frames)
-    for factor in prior_factors(frames, sequence.timestamps, theta0, bending, options):
+    for factor in prior_factors(frames, sequence.timestamps, theta0, bending, options,
+                                start_sigmas=start_sigmas):
         graph.add(factor)
     if calibration_sigmas is not None:
         for factor in calibration_factors(sequence.robot, calibration_sigmas):

@@ -88,6 +88,20 @@ def warn_pause(frame: int, timestamp: float, gap: float, sigma: float) -> None:
                   BlackoutWarning, stacklevel=4)
 
 
+def warn_segment_lost(frame: int, timestamp: float, camera: int, sigma: float) -> None:
+    """Say that the tracks of the camera on segment ``camera`` (0-based) came back all new at
+    ``frame`` (``timestamp`` seconds) after the smoother lost its segment (``sigma``: that
+    segment's marginal sigma the frame before, radians; NaN if unknown)."""
+    shown = "?" if not math.isfinite(sigma) else f"{math.degrees(sigma):.2g}"
+    n = camera + 1
+    warnings.warn(f"frame {frame} ({timestamp:.3f} s): camera cam_{n}'s tracks came back all "
+                  f"new after the smoother had lost segment {n} (sigma {shown} deg: no other "
+                  "camera sees it). The smoother re-acquires that segment from the frames that "
+                  "follow once they span its lag (holding that camera's tracks until then); "
+                  "until then its angle rests on the motion prior and may be off",
+                  BlackoutWarning, stacklevel=5)
+
+
 @dataclass(frozen=True)
 class Forward:
     """A blind frame's estimate from the frames before the blackout alone: its frame vector,
@@ -141,6 +155,13 @@ class Reacquisition:
         then: after this re-acquisition, keep the frames until they span this many seconds
             and re-acquire them once more (:meth:`longer`); ``None``: once.
         span: keep the frames until they span this many seconds rather than the lag.
+        camera: one camera's tracks came back (its segment lost, the others not): only that
+            segment is re-acquired (the search's answer replaces it alone); ``None``: every
+            segment.
+        sigmas: ``(dim,)`` the start prior's sigma per component (radians), replacing
+            ``sigma`` (a segment the search determines takes the search's).
+        since: with ``camera``, the first graph frame that camera did not see (its blind
+            frames are bridged once the segment is re-acquired).
     """
 
     robot: Robot
@@ -153,6 +174,9 @@ class Reacquisition:
     then: float | None = None
     span: float | None = None
     blind: dict[int, Forward] = field(default_factory=dict)
+    camera: int | None = None
+    sigmas: FloatArray | None = None
+    since: int | None = None
     slots: list[int] = field(default_factory=list)
     _times: list[float] = field(default_factory=list)
     _frames: list[FrameObservations] = field(default_factory=list)
@@ -199,22 +223,50 @@ class Reacquisition:
         """The kept frames' ``(K, dim)`` frame vectors, ``(K, S w w)`` flattened marginal
         covariance blocks and ``(K, dim)`` standard deviations (radians)."""
         sequence = self.sequence()
-        theta0, sigma = self._searched(sequence) if self.search else (self.theta0, self.sigma)
+        theta0, sigma, spreads = (self._searched(sequence) if self.search
+                                  else (self.theta0, self.sigma, None))
         options = replace(self.options, theta0_sigma=max(sigma, MIN_SIGMA))
+        sigmas = None
+        if self.camera is not None:  # the search answers for the lost segment only
+            theta0, sigmas = self._one_segment(theta0, spreads)
         start, _, _ = chain_vectors(sequence, self.bending, theta0, options.threshold_px)
         found = projection_solve(sequence, start, theta0, options,
-                                 Robustness(self.inlier_sigmas), bending=self.bending)
+                                 Robustness(self.inlier_sigmas), bending=self.bending,
+                                 start_sigmas=sigmas)
         return found.x, found.blocks.reshape(len(found.x), -1), found.sigmas
 
-    def _searched(self, sequence: Sequence) -> tuple[FloatArray, float]:
-        """The kept frames' start and its sigma: the unknown-start search's when it determines
-        them, else ``theta0`` and ``sigma``."""
+    def block(self) -> slice:
+        """The components of the re-acquired camera's segment in a frame vector."""
+        w, c = self.bending.width, self.camera
+        if c is None:
+            raise ValueError("Reacquisition.block: every segment is re-acquired")
+        return slice(w * c, w * (c + 1))
+
+    def _one_segment(self, searched: FloatArray, spreads: FloatArray | None
+                     ) -> tuple[FloatArray, FloatArray]:
+        """The start of a one-camera re-acquisition: the smoother's frame vector and sigmas,
+        the lost segment's block from ``searched`` when the search determined it (``spreads``:
+        its ``(S,)`` sigmas, else ``None``)."""
+        theta0 = np.array(self.theta0, dtype=float)
+        sigmas = (np.full(len(theta0), self.sigma) if self.sigmas is None
+                  else np.array(self.sigmas, dtype=float))
+        block = self.block()
+        if spreads is not None:
+            theta0[block], sigmas[block] = searched[block], spreads[self.camera]
+        sigmas[block] = np.maximum(sigmas[block], MIN_SIGMA)
+        return theta0, np.maximum(sigmas, 1e-6)
+
+    def _searched(self, sequence: Sequence) -> tuple[FloatArray, float, FloatArray | None]:
+        """The kept frames' start, its sigma and the search's ``(S,)`` sigmas: the
+        unknown-start search's when it determines them, else ``theta0``, ``sigma`` and
+        ``None``."""
         span = float(sequence.timestamps[-1] - sequence.timestamps[0])
         try:
             found = find_start(sequence, span + 1.0, self.options, spatial=self.bending.is_free,
                                robustness=Robustness(self.inlier_sigmas))
         except (RuntimeError, ValueError, IndexError):
-            return self.theta0, self.sigma
+            return self.theta0, self.sigma, None
         if not found.determined:
-            return self.theta0, self.sigma
-        return found.x0.copy(), float(np.nanmax(found.sigma0, initial=MIN_SIGMA))
+            return self.theta0, self.sigma, None
+        spreads = np.asarray(found.sigma0, dtype=float)
+        return found.x0.copy(), float(np.nanmax(spreads, initial=MIN_SIGMA)), spreads

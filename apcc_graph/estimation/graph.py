@@ -197,11 +197,14 @@ def limit_factor(key: int, bending: Bending, sigma: float) -> gtsam.CustomFactor
 
 def prior_factors(frames: Iterable[int], timestamps: Sequence[float] | FloatArray,
                   theta0: FloatArray | None, bending: Bending, options: GraphOptions,
-                  limits: bool = True) -> list[gtsam.NonlinearFactor]:
+                  limits: bool = True, start_sigmas: FloatArray | None = None
+                  ) -> list[gtsam.NonlinearFactor]:
     """Start prior (when ``theta0``, the first frame's vector, is given, on the first of
     ``frames``), motion priors between consecutive frames and joint limits.
 
-    ``timestamps[f]`` is frame f's time (seconds); frame vectors are ``bending``'s.
+    ``timestamps[f]`` is frame f's time (seconds); frame vectors are ``bending``'s. The start
+    prior's sigma is ``options.theta0_sigma`` on every component, or ``start_sigmas``
+    (``(dim,)`` radians, one per component) when given.
     """
     frames = list(frames)
     dim = bending.dim
@@ -210,9 +213,14 @@ def prior_factors(frames: Iterable[int], timestamps: Sequence[float] | FloatArra
         theta0 = np.asarray(theta0, dtype=float)
         if theta0.shape != (dim,):
             raise ValueError(f"theta0 has shape {theta0.shape}: expected ({dim},)")
-        out.append(gtsam.PriorFactorVector(
-            frame_key(frames[0]), theta0,
-            gtsam.noiseModel.Isotropic.Sigma(dim, options.theta0_sigma)))
+        if start_sigmas is None:
+            noise = gtsam.noiseModel.Isotropic.Sigma(dim, options.theta0_sigma)
+        else:
+            sig = np.asarray(start_sigmas, dtype=float)
+            if sig.shape != (dim,) or not np.all(np.isfinite(sig) & (sig > 0.0)):
+                raise ValueError(f"start_sigmas {sig!r}: expected ({dim},) positive radians")
+            noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
+        out.append(gtsam.PriorFactorVector(frame_key(frames[0]), theta0, noise))
     for prev, f in zip(frames[:-1], frames[1:], strict=True):
         if options.motion_sigma is not None:
             dt = max(float(timestamps[f] - timestamps[prev]), 1e-9)

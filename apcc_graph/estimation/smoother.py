@@ -197,6 +197,7 @@ class FixedLagSmoother(Restarts):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
         self._watch_gaps(f, t, rows, still.count - 1, still.last_time or 0.0)
+        rows = self._hold_out(rows, t)  # a camera whose lost segment is being re-acquired
         verdicts = judge_frame(  # and frame f - 1's, before its pieces are committed
             f, rows, self._previous_rows if window.inside(f - 1) else {}, self._tracks.live,
             self.settings.rotation_gate)

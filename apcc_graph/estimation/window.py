@@ -248,6 +248,24 @@ class Window:
             elif h in self.final:
                 self.final[h] = SmootherFrame(h, self.final[h].timestamp, th, cov, status)
 
+    def reacquired_segment(self, slots: Iterable[int], segment: int, block: slice,
+                           thetas: FloatArray, blocks: FloatArray) -> None:
+        """Frames ``slots`` take segment ``segment``'s components ``block`` of the re-acquired
+        frame vectors ``thetas`` (and its covariance block of the flattened ``blocks``;
+        status ``"reacquired"`` for that segment): those in the window, and those that left
+        and were not taken yet."""
+        w2 = (block.stop - block.start) ** 2
+        cells = slice(w2 * segment, w2 * (segment + 1))
+        for h, th, cov in zip(slots, thetas, blocks, strict=True):
+            if self.inside(h):
+                self.thetas[h][block] = th[block]
+                self.status[h][segment] = "reacquired"
+            elif h in self.final:
+                old = self.final[h]
+                x, s, status = old.thetas.copy(), old.sigmas.copy(), old.status.copy()
+                x[block], s[cells], status[segment] = th[block], cov[cells], "reacquired"
+                self.final[h] = SmootherFrame(h, old.timestamp, x, s, status)
+
     def revise(self, frame: int, thetas: FloatArray, blocks: FloatArray) -> None:
         """A frame that left takes a better final estimate (its status unchanged), unless it
         was taken already (:meth:`pop_final`)."""
