@@ -214,7 +214,7 @@ def _known_failure(prefix: str, reason: str) -> object:
                    "the re-acquired smoother gets within twice the bound a second later is "
                    "tested above"),
     _known_failure("camera 2 blind", "recovers on these 210 frames, but the benchmark's "
-                   "450-frame run took 255 frames (segment 2 RMS 0.20 deg, 2.3x the undisturbed "
+                   "450-frame run took 254 frames (segment 2 RMS 0.20 deg, 2.3x the undisturbed "
                    "run), where the 1 s lag bound of segment 2 is 0.13 deg 30 frames after the "
                    "blackout and 0.09 after 60: an efficient smoother would be back in 30-60"),
 ])
