@@ -33,7 +33,7 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         "reliability", help="the smoother under faults: blind cameras, a frozen robot, ...",
         description="Inject each fault (one or all cameras blind for 1 s, the last camera "
         "blind for 3 s, a camera that never sees, the robot frozen for 5 s, a 10 deg jump, "
-        "swapped track ids, 50%% outliers for 1 s, a start 5 deg off) into the same "
+        "swapped track ids, 50% outliers for 1 s, a start 5 deg off) into the same "
         "simulated recording and run the default smoother: what it did, RMS beside the "
         "Cramer-Rao bound of the faulted recording, recovery time in frames (target 30) and "
         "sigma honesty. Then the recording paused for 1.5 s (frames dropped while the robot "
