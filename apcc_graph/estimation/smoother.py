@@ -19,7 +19,8 @@ frame is safe); a robot standing still (after a few still frames the next ones a
 the graph: :mod:`apcc_graph.estimation.stillness`); gtsam's indeterminate-system exception
 (caught; the smoother restarts from its last estimate with the start prior at that estimate);
 tracks that return after a blackout, or none after a pause of more than half a second (both
-re-acquired, a pause twice: :mod:`apcc_graph.estimation.smoother_restarts`); a start that
+re-acquired, a pause twice), and one camera's that return after the window lost its segment
+(that segment re-acquired: :mod:`apcc_graph.estimation.smoother_restarts`); a start that
 contradicts the first second's images (replaced by the unknown-start search's answer:
 :mod:`apcc_graph.estimation.start_check`); a model the images contradict (every 2 s of final
 frames is tested: :mod:`apcc_graph.estimation.fit_monitor`)."""

@@ -153,7 +153,7 @@ class Restarts:
                 self.robot, self.options, self.inlier_sigmas, self.bending,
                 window.thetas[f - 1].copy(), LOOSE, camera=cam,
                 sigmas=np.where(np.isfinite(sigmas) & (sigmas > 0.0), sigmas, LOOSE),
-                since=-1 if last is None else last + 1)
+                since=0 if last is None else last + 1)
             return
 
     def _hold_out(self, rows: Rows, t: float) -> Rows:

@@ -60,7 +60,8 @@ class SmootherFrame:
         status: ``(S,)`` per segment: ``"ok"`` (measured), ``"initial"`` (first frame),
             ``"predicted"`` (no known point seen: the prediction stands), ``"recovered"``
             (after a gtsam failure), ``"reacquired"`` (re-acquired by a batch after a
-            blackout) or ``"still"`` (the robot stood still: the frame takes the estimate of
+            blackout; only the segment a lost camera's return re-acquired, after one camera's)
+            or ``"still"`` (the robot stood still: the frame takes the estimate of
             the last one that moved; :mod:`apcc_graph.estimation.stillness`).
         psis, psi_sigmas: for a spatial robot, ``(S,)`` bending planes and their standard
             deviations (radians; ``thetas`` are then the bends' magnitudes, as in
