@@ -184,8 +184,8 @@ class Restarts:
         and the window restarts at the newest under a prior that keeps what it knew of the
         other segments (its marginal covariance of that frame) and takes the batch's answer
         for the lost one. Keeping the window instead, with the batch's answers as priors on
-        the kept frames, left the segment 0.4-2 deg off with sigmas of 0.05 (the held
-        camera's rows, linearised degrees away, went into the marginals of the frames that
+        the kept frames, left the segment 0.4-2 deg off with sigmas of 0.05 (probably the held
+        camera's rows, linearised degrees away, going into the marginals of the frames that
         left); without those priors it drifted 18 deg (docs/estimation.md)."""
         window, block, c, g = self._window, kept.block(), kept.camera or 0, kept.slots[-1]
         w = block.stop - block.start
