@@ -205,11 +205,10 @@ class FixedLagSmoother(Restarts):
         self._last_seen = f if rows else self._last_seen
         if self._first is not None:  # frame 0 left at a restart: no verdict on the start
             self._first = self._first.keep(f, t, observations, f == 0 or window.inside(0))
-        if self._reacquiring is not None:
-            if self._reacquiring.due(t, window.lag):
-                self._reacquire(self._reacquiring)
-            else:
-                self._reacquiring.add(f, t, observations)
+        if self._reacquiring is not None and self._reacquiring.due(t, window.lag):
+            self._reacquire(self._reacquiring)  # may leave a second round pending
+        if self._reacquiring is not None and not self._reacquiring.due(t, window.lag):
+            self._reacquiring.add(f, t, observations)  # every frame, the second round's too
         previous, window.last_time = window.last_time, t
         add = Additions()
         self._make_room(add, f, t, rows)
