@@ -61,6 +61,26 @@ def test_a_camera_removed_and_the_bound_of_its_segment(sim: Simulation) -> None:
     assert np.isfinite(worse[1])
 
 
+def test_a_paused_simulation_drops_the_frames_and_their_truth(sim: Simulation) -> None:
+    out = faults.paused(sim, 20, 35)
+    _truth_consistent(out)
+    assert out.sequence.n_frames == sim.sequence.n_frames - 15
+    np.testing.assert_array_equal(out.sequence.timestamps[19:21],
+                                  sim.sequence.timestamps[[19, 35]])
+    np.testing.assert_array_equal(out.world_T_tip[20], sim.world_T_tip[35])
+    for cam, poses in out.world_T_cam.items():
+        np.testing.assert_array_equal(poses[20], sim.world_T_cam[cam][35])
+    for cam, t in out.sequence.tracks.items():  # row by row, the same observation and truth
+        was = sim.sequence.tracks[cam]
+        rows = (was.frames < 20) | (was.frames >= 35)
+        np.testing.assert_array_equal(t.uv, was.uv[rows])
+        np.testing.assert_array_equal(out.landmarks[cam], sim.landmarks[cam][rows])
+    # the bound of the paused recording: every frame after the pause is still seen
+    assert np.all(np.isfinite(sequence_bound(out, 1.0).sigmas[20:]))
+    with pytest.raises(ValueError, match="frames before and after"):
+        faults.paused(sim, 0, 10)
+
+
 def test_an_outlier_burst_marks_the_fraction_asked(sim: Simulation) -> None:
     out = faults.outlier_burst(sim, 1, 10, 40, fraction=0.5, seed=1)
     _truth_consistent(out)

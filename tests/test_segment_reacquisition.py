@@ -83,3 +83,19 @@ def test_the_window_takes_the_reacquired_segment_and_keeps_the_others() -> None:
     np.testing.assert_allclose(left.sigmas, [0.1, 0.2, 0.8])
     assert list(left.status) == ["ok", "ok", "reacquired"]
     assert 3 not in window.final and not window.inside(3)
+
+
+def test_a_frame_that_left_and_was_not_taken_reenters_the_window_in_order() -> None:
+    """A restart that holds the frames a batch re-acquired takes back those a gtsam failure
+    pushed out, in frame order, with their status; a frame already taken stays out."""
+    window = Window(1.0, 3, lambda: None)  # type: ignore[arg-type, return-value]
+    done = np.array(["reacquired"] * 3, dtype="<U24")
+    window.enter(7, 0.7, 0.7, done.copy())
+    window.thetas[7] = np.zeros(3)
+    window.final[6] = SmootherFrame(6, 0.6, np.ones(3), np.full(3, 0.1), done.copy())
+    assert window.reenter(6, np.array([0.5, 0.6, 0.7]))
+    assert list(window.stamps) == [6, 7] and list(window.thetas) == [6, 7]
+    assert window.inside(6) and 6 not in window.final and window.times[6] == 0.6
+    np.testing.assert_allclose(window.thetas[6], [0.5, 0.6, 0.7])
+    assert list(window.status[6]) == ["reacquired"] * 3
+    assert not window.reenter(5, np.zeros(3)) and not window.inside(5)  # taken already

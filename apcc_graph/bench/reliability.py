@@ -173,13 +173,16 @@ PAUSE = 45
 
 @dataclass(frozen=True)
 class PauseRun:
-    """The pause's row: RMS per segment over every frame after the pause (radians)."""
+    """The pause's row: RMS per segment over every frame after the pause (radians), and the
+    yardsticks over the same frames."""
 
     frames: int  # frames dropped
     at: int  # the first frame after the pause (in the paused recording)
     smoother: FloatArray
     batch: FloatArray
     warned: bool  # the smoother said it re-acquires
+    bound: FloatArray | None = None  # the whole recording's bound: the batch's yardstick
+    lag: FloatArray | None = None  # a 1 s lag's bound (every PAUSE_STEP-th frame)
 
     @property
     def ratio(self) -> FloatArray:
@@ -187,12 +190,17 @@ class PauseRun:
         return self.smoother / self.batch
 
 
+PAUSE_STEP = 10
+"""The pause's lag bound is sampled every this many frames after it."""
+
+
 def run_pause(frames: int = 450, seed: int = 1) -> PauseRun:
     """The undisturbed recording paused for :data:`PAUSE` frames from frame ``frames // 3``
-    while the robot moved on; the default smoother and the batch on it."""
+    while the robot moved on; the default smoother and the batch on it, and the bounds of the
+    whole recording and of a 1 s lag over the frames after the pause."""
     at = frames // 3
-    sequence = faults.dropped_frames(_simulate(load_robot(ROBOT_FILE), frames, seed).sequence,
-                                     at, at + PAUSE)
+    sim = faults.paused(_simulate(load_robot(ROBOT_FILE), frames, seed), at, at + PAUSE)
+    sequence = sim.sequence
     assert sequence.thetas is not None
     out = []
     with warnings.catch_warnings(record=True) as caught, \
@@ -202,8 +210,11 @@ def run_pause(frames: int = 450, seed: int = 1) -> PauseRun:
             result = estimate(sequence, method=method, theta0=sequence.thetas[0],
                               theta0_sigma=THETA0_SIGMA, noise_px=NOISE_PX, progress=False)
             out.append(rms(result.errors(sequence.thetas)[at:]))
+        bound = rms(sequence_bound(sim, NOISE_PX, THETA0_SIGMA).sigmas[at:])
+        lag = rms(lag_bound(sim, NOISE_PX, SECOND, THETA0_SIGMA,
+                            frames=range(at, sequence.n_frames, PAUSE_STEP)).sigmas)
     warned = any("paused for" in str(w.message) for w in caught)
-    return PauseRun(PAUSE, at, out[0], out[1], warned)
+    return PauseRun(PAUSE, at, out[0], out[1], warned, bound, lag)
 
 
 def _what_it_did(caught: list[warnings.WarningMessage], status: np.ndarray) -> str:
@@ -261,4 +272,9 @@ def format_reliability(rows: list[FaultRun], frames: int, pause: PauseRun | None
                 f"every frame after it: smoother {show(pause.smoother)} deg, the batch on the "
                 f"same frames {show(pause.batch)}, ratio "
                 + " / ".join(f"{x:.1f}" for x in pause.ratio) + " (target 1.5)"]
+        if pause.bound is not None and pause.lag is not None:
+            out += [f"  yardsticks over those frames: the whole recording's bound "
+                    f"{show(pause.bound)} (the batch's), a 1 s lag's {show(pause.lag)} (the "
+                    f"smoother's; every {PAUSE_STEP}th frame); smoother / lag bound "
+                    + " / ".join(f"{x:.2f}" for x in pause.smoother / pause.lag)]
     return "\n".join(out)

@@ -17,12 +17,12 @@ sigma). Graduated non-convexity and Levenberg-Marquardt over a second of new tra
 basin that Gauss-Newton steps frame by frame miss: on the 210-frame test recording, batches over
 20 and 40 frames from 60 degrees off came within 12 and 3 degrees of segment 1 (honest sigmas
 of 6 and 1.3), segments 2 and 3 within 2 and 0.4. The batch's angles become those frames' final
-estimates (status ``"reacquired"``), and the window restarts at the newest of them with the
-batch's marginal sigmas as its prior. The blind frames themselves are kept out of the new
-tracks' first, wrong minimum (the window restarts at the last of them when the tracks come
-back) and, once the batch has solved, :func:`bridged` between the frames before the blackout
-and the first re-acquired frame. Not robust yet: that window holds one frame and only new
-tracks, and gtsam can fail on it a second later (docs/estimation.md, the known failures).
+estimates (status ``"reacquired"``; :class:`Reacquired` holds what it found), and the window
+restarts holding them, under the batch's own priors, their observations replayed into its
+tracks (:mod:`apcc_graph.estimation.smoother_restarts`). The blind frames themselves are kept
+out of the new tracks' first, wrong minimum (the window restarts at the last of them when the
+tracks come back) and, once the batch has solved, :func:`bridged` between the frames before
+the blackout and the first re-acquired frame.
 """
 
 from __future__ import annotations
@@ -137,6 +137,25 @@ def bridged(forward: Forward, after: FloatArray, after_blocks: FloatArray, time:
     return x.ravel(), C.ravel()
 
 
+@dataclass(frozen=True)
+class Reacquired:
+    """What one re-acquisition's batch found over the ``K`` kept frames.
+
+    Attributes:
+        x: ``(K, dim)`` frame vectors (radians).
+        blocks: ``(K, S w w)`` flattened marginal covariance blocks (radians squared).
+        sigmas: ``(K, dim)`` marginal standard deviations (radians).
+        start: ``(dim,)`` the mean of the start prior it used on the first kept frame.
+        start_sigmas: ``(dim,)`` that prior's standard deviations (radians).
+    """
+
+    x: FloatArray
+    blocks: FloatArray
+    sigmas: FloatArray
+    start: FloatArray
+    start_sigmas: FloatArray
+
+
 @dataclass
 class Reacquisition:
     """The frames after a blackout, kept until one batch re-acquires their angles.
@@ -187,6 +206,20 @@ class Reacquisition:
         self._times.append(t)
         self._frames.append(observations)
 
+    def frame(self, k: int) -> FrameObservations:
+        """The ``k``-th kept frame's observations."""
+        return self._frames[k]
+
+    def base(self, k: int) -> FloatArray | None:
+        """The ``k``-th kept frame's base pose, if it has one."""
+        base = self._frames[k].world_T_base
+        return None if base is None else np.asarray(base, dtype=float)
+
+    @property
+    def times(self) -> list[float]:
+        """The kept frames' graph times (seconds)."""
+        return list(self._times)
+
     @property
     def first_time(self) -> float:
         """The graph time of the first kept frame."""
@@ -219,9 +252,8 @@ class Reacquisition:
         return Sequence(self.robot, self._times, tracks,
                         None if any(b is None for b in bases) else np.array(bases))
 
-    def solve(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """The kept frames' ``(K, dim)`` frame vectors, ``(K, S w w)`` flattened marginal
-        covariance blocks and ``(K, dim)`` standard deviations (radians)."""
+    def solve(self) -> Reacquired:
+        """One batch over the kept frames (:class:`Reacquired`)."""
         sequence = self.sequence()
         theta0, sigma, spreads = (self._searched(sequence) if self.search
                                   else (self.theta0, self.sigma, None))
@@ -233,7 +265,10 @@ class Reacquisition:
         found = projection_solve(sequence, start, theta0, options,
                                  Robustness(self.inlier_sigmas), bending=self.bending,
                                  start_sigmas=sigmas)
-        return found.x, found.blocks.reshape(len(found.x), -1), found.sigmas
+        prior = (np.full(len(theta0), options.theta0_sigma) if sigmas is None
+                 else np.asarray(sigmas, dtype=float))
+        return Reacquired(found.x, found.blocks.reshape(len(found.x), -1), found.sigmas,
+                          np.array(theta0, dtype=float), prior)
 
     def block(self) -> slice:
         """The components of the re-acquired camera's segment in a frame vector."""

@@ -12,7 +12,9 @@ window, tracks and landmarks):
   :class:`~apcc_graph.estimation.blackout.Reacquisition` of the frames that follow;
 - :meth:`Restarts._reacquire` solves those frames in one batch, from the unknown-start
   search's answer, once the first of them is about to leave the window, and restarts the
-  window at the newest (:meth:`Restarts._restart`, also used after a gtsam failure);
+  window holding them (:meth:`Restarts._restart_holding`: the batch's values and priors, their
+  observations replayed into the live tracks, so the window knows what the batch knew);
+  after a gtsam failure the window restarts from one frame (:meth:`Restarts._restart`);
 - :meth:`Restarts._watch_camera` notices one camera whose tracks come back all new while the
   others kept seeing, after the window lost that camera's segment (its marginal sigma above
   :data:`LOST`: the last camera's segment, seen by no other camera, drifts on the motion prior
@@ -40,6 +42,7 @@ from numpy.typing import NDArray
 from apcc_graph.estimation.blackout import (
     MIN_SIGMA,
     Forward,
+    Reacquired,
     Reacquisition,
     bridged,
     tracks_returned,
@@ -48,10 +51,12 @@ from apcc_graph.estimation.blackout import (
     warn_segment_lost,
 )
 from apcc_graph.estimation.fixed_lag import WindowSolver
-from apcc_graph.estimation.graph import frame_key
+from apcc_graph.estimation.graph import frame_key, prior_factors
 from apcc_graph.estimation.landmarks import Landmarks
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.projection_tracks import ProjectionTracks, Rows
+from apcc_graph.estimation.projection_tracks import ProjectionTracks, Rows, frame_rows
+from apcc_graph.estimation.rotation_gate import judge_frame
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.window import Window, component_sigmas, key_stamps
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
@@ -66,9 +71,11 @@ SECOND_ROUND: float | None = 2.0
 """Seconds: after the first re-acquisition of the frames after a pause (over one lag of them),
 they are kept until they span this long and re-acquired once more, and the window restarts from
 that batch (``None``: one round). After a pause of 1.5 s it took segment 1 from 4-6 degrees RMS
-to 0.9. Not after a contradicted start (segment 1 0.82 to 1.02 degree on the reliability
-bench), nor yet after a blackout, whose bench row varies from run to run as much as a second
-round changed it (docs/estimation.md, "What the smoother says when the data go wrong")."""
+to 0.9 when the window restarted from one frame; restarted holding the batch's frames, from 1.03
+to 0.75 (the bound of a 1 s lag there: 0.85). Not after a contradicted start (segment 1 0.82
+to 1.02 degree on the reliability bench), nor yet after a blackout, whose bench row varies
+from run to run as much as a second round changed it (docs/estimation.md, "What the smoother
+says when the data go wrong")."""
 LOOSE = math.pi / 6
 """Radians: the start prior of a re-acquisition when nothing says how far the robot went."""
 LOST = math.radians(2.0)
@@ -84,16 +91,19 @@ class Restarts:
     options: GraphOptions
     bending: Bending
     inlier_sigmas: float
+    settings: SmootherOptions
     _window: Window
     _tracks: ProjectionTracks
     _landmarks: Landmarks
     _last_seen: int | None
     _previous_rows: Rows
+    _previous_base: FloatArray | None
     _reacquiring: Reacquisition | None
     _live_indices: list[int]
     _known: Callable[[int, NDArray[np.int64]], NDArray[np.bool_]]
     _sigmas: Callable[[int], FloatArray]
     _smoother: WindowSolver
+    _read_window: Callable[[], None]
     _pause_at: int | None = None  # the first graph frame after the last pause
     _seen_by: Mapping[int, int] = MappingProxyType({})  # camera -> last graph frame it saw
 
@@ -261,30 +271,96 @@ class Restarts:
 
     def _reacquire(self, kept: Reacquisition) -> None:
         """One batch over the frames kept since a blackout or a pause (or since the start,
-        replaced); they take its angles and sigmas, and the window restarts at the newest
-        (:mod:`apcc_graph.estimation.blackout`)."""
+        replaced); they take its angles and sigmas, and the window restarts holding them
+        (:meth:`_restart_holding`; :mod:`apcc_graph.estimation.blackout`)."""
         self._reacquiring, window, g = None, self._window, kept.slots[-1]
         if not window.inside(g):
             return
         if kept.camera is not None:
             kept = self._segment_start(kept)
         try:
-            thetas, blocks, sigmas = kept.solve()
+            found = kept.solve()
         except (RuntimeError, ValueError, IndexError):
             return  # the window goes on as it was
         if kept.camera is not None:
-            self._reacquire_segment(kept, thetas, blocks)
+            self._reacquire_segment(kept, found.x, found.blocks)
             return
-        window.reacquired(kept.slots, thetas, blocks, self.robot.n_segments)
+        window.reacquired(kept.slots, found.x, found.blocks, self.robot.n_segments)
         motion = self.options.motion_sigma
         for h, forward in kept.blind.items() if motion is not None else ():
-            window.revise(h, *bridged(forward, thetas[0], blocks[0], kept.first_time, motion,
-                                      self.bending.width))
-        sigma = np.where(np.isfinite(sigmas[-1]), np.maximum(sigmas[-1], 1e-6), LOOSE)
-        self._restart(g, window.stamps[g], thetas[-1], gtsam.noiseModel.Diagonal.Sigmas(sigma),
-                      None, dict(zip(kept.slots, blocks, strict=True)))
+            window.revise(h, *bridged(forward, found.x[0], found.blocks[0], kept.first_time,
+                                      motion, self.bending.width))
+        self._restart_holding(kept, found)
         if kept.then is not None and kept.then > window.lag:
             self._reacquiring = kept.longer(kept.then)
+
+    def _restart_holding(self, kept: Reacquisition, found: Reacquired) -> None:
+        """A new window holding the re-acquired frames still in the window, at the batch's
+        values, under the batch's own priors (its start prior on the first kept frame, or,
+        when that frame has left, the batch's marginal there; the motion priors between
+        them), their observations replayed into the live tracks (:meth:`_replay`): the
+        window goes on from what the batch knew, and the tracks that continue keep their
+        points. The other frames leave."""
+        window = self._window
+        for k, h in enumerate(kept.slots):  # frames a gtsam failure pushed out come back
+            if not window.inside(h) and kept.times[k] >= kept.times[-1] - window.lag:
+                window.reenter(h, found.x[k])
+        inside = [(k, h) for k, h in enumerate(kept.slots) if window.inside(h)]
+        k0, h0 = inside[0]
+        if k0 == 0:
+            mean, sigma = found.start, found.start_sigmas
+        else:  # also summarises the rows replayed below: slightly overconfident
+            mean, sigma = found.x[k0], found.sigmas[k0]
+        sigma = np.where(np.isfinite(sigma), np.maximum(sigma, 1e-6), LOOSE)
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        graph.add(gtsam.PriorFactorVector(frame_key(h0), mean,
+                                          gtsam.noiseModel.Diagonal.Sigmas(sigma)))
+        for factor in prior_factors([h for _, h in inside], window.times, None, self.bending,
+                                    self.options, limits=False):
+            graph.add(factor)
+        for k, h in inside:
+            values.insert(frame_key(h), found.x[k])
+        by_slot = dict(zip(kept.slots, found.blocks, strict=True))
+        sigmas = {h: by_slot.get(h, self._sigmas(h)) for h in window.stamps}
+        keep = {h for _, h in inside}
+        for h in [h for h in window.stamps if h not in keep]:
+            window.leave(h, window.thetas.get(h, found.x[0]).copy(), sigmas[h])
+        window.renew()
+        self._replay(kept, inside)
+        self._settle(graph, values, key_stamps([(frame_key(h), window.stamps[h])
+                                                for _, h in inside]))
+
+    def _replay(self, kept: Reacquisition, inside: list[tuple[int, int]]) -> None:
+        """The kept frames ``inside`` (kept index, graph frame) become the live tracks' only
+        frames, judged by the rotation gate (each piece's outlier decisions come from its
+        robust triangulation at the batch's values when its factor is first built); the
+        landmarks are forgotten."""
+        tracks = self._tracks
+        tracks.reset()
+        tracks.bases = {h: kept.base(k) for k, h in inside}
+        self._landmarks.reset()
+        self._live_indices = []
+        before: Rows = {}
+        for k, h in inside:
+            rows = frame_rows(self.robot, h, kept.frame(k), self.options.threshold_px)
+            verdicts = judge_frame(h, rows, before, tracks.live, self.settings.rotation_gate)
+            for cam, (ids, xy, whiten) in rows.items():
+                tracks.live.add(h, cam, ids, xy, whiten, None, verdicts[cam])
+            before = rows
+        self._previous_rows, self._previous_base = before, kept.base(inside[-1][0])
+
+    def _settle(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                stamps: Mapping[int, float]) -> None:
+        """The restarted window's first update: ``graph``, its new ``values`` and their
+        ``stamps``, with the live tracks' factors. (With the priors alone, one Gauss-Newton
+        step pulled every frame onto the start prior, 17 to 49 degrees from the batch's
+        answer on a pause, and the first frames left the window before they came back.)"""
+        live = self._tracks.live_factors(graph)
+        self._smoother.update(graph, values, stamps, self._live_indices)
+        indices = self._smoother.getISAM2Result().getNewFactorsIndices()
+        self._live_indices = [int(indices[pos]) for pos, *_ in live]
+        self._tracks.keep_points(live)
+        self._read_window()
 
     def _restart(self, f: int, t: float, thetas: FloatArray,
                  prior: gtsam.noiseModel.Base | None = None, status: str | None = "recovered",

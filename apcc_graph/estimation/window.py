@@ -267,6 +267,21 @@ class Window:
                 x[block], s[cells], status[segment] = th[block], cov[cells], "reacquired"
                 self.final[h] = SmootherFrame(h, old.timestamp, x, s, status)
 
+    def reenter(self, frame: int, thetas: FloatArray) -> bool:
+        """A frame that left (at a restart) and was not taken yet comes back into the window
+        at ``thetas`` (a restart that holds the frames a batch re-acquired); returns whether
+        it did."""
+        record = self.final.pop(frame, None)
+        if record is None:
+            return False
+        self.stamps[frame] = self.times[frame] = record.timestamp
+        self.thetas[frame], self.status[frame] = np.array(thetas, dtype=float), record.status
+        for kept in (self.stamps, self.times, self.thetas, self.status):
+            ordered = sorted(kept.items())
+            kept.clear()
+            kept.update(ordered)
+        return True
+
     def revise(self, frame: int, thetas: FloatArray, blocks: FloatArray) -> None:
         """A frame that left takes a better final estimate (its status unchanged), unless it
         was taken already (:meth:`pop_final`)."""

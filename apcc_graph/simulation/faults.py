@@ -14,7 +14,8 @@ bound of the faulted recording can be computed as for any simulation:
   in a cycle, then return to their own), marked as wrong associations in the truth.
 
 A pause in the recording (frames never received while the robot moved on) changes the frames
-themselves: :func:`dropped_frames` returns the recording without them.
+themselves: :func:`dropped_frames` returns the recording without them, :func:`paused` the
+simulation (its truth too).
 
 Motions with faults (the robot frozen, a sudden jump) are new true angles given to
 :func:`~apcc_graph.simulation.simulator.simulate` (its ``bends`` option): :func:`frozen_bends`
@@ -195,3 +196,23 @@ def dropped_frames(sequence: Sequence, start: int, stop: int) -> Sequence:
     psis = None if sequence.psis is None else sequence.psis[keep]
     return Sequence(sequence.robot, sequence.timestamps[keep], tracks, world_T_base=base,
                     thetas=thetas, psis=psis)
+
+
+def paused(sim: Simulation, start: int, stop: int) -> Simulation:
+    """``sim`` without frames ``start..stop-1`` (:func:`dropped_frames`), its truth (each
+    row's scene point, noise-free pixel and association; the true poses) without them too, so
+    the bound of the paused recording can be computed.
+
+    Raises:
+        ValueError: an empty or out-of-range span.
+    """
+    sequence = dropped_frames(sim.sequence, start, stop)
+    keep = np.r_[0:start, stop:sim.sequence.n_frames]
+    truth: dict[str, dict[int, np.ndarray]] = {"landmarks": {}, "clean_uv": {}, "outliers": {}}
+    for cam, t in sim.sequence.tracks.items():
+        rows = (t.frames < start) | (t.frames >= stop)  # dropped_frames keeps their order
+        for name, by_cam in truth.items():
+            by_cam[cam] = getattr(sim, name)[cam][rows]
+    return dataclasses.replace(
+        sim, sequence=sequence, world_T_tip=sim.world_T_tip[keep],
+        world_T_cam={cam: poses[keep] for cam, poses in sim.world_T_cam.items()}, **truth)
