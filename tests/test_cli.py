@@ -337,3 +337,22 @@ def test_factorization_reaches_the_smoother(given: list[str], expected: str) -> 
     args = build_parser().parse_args(["estimate", "data/sequences/planar_three", "--method",
                                       "smoother", *given, "--out", "x"])
     assert _options(args)["settings"].factorization == expected
+
+
+def test_a_list_option_may_start_with_a_negative_value(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``--theta0-deg -15,3,4`` is the option's value, as ``--theta0-deg=-15,3,4`` is; a
+    lone negative number too; something that is neither is still refused as an option."""
+    from apcc_graph.cli.main import build_parser
+
+    parser = build_parser()
+    args = parser.parse_args(["estimate", "seq", "--out", "o", "--theta0-deg", "-15,3,4",
+                              "--spatial", "--psi0-deg", "-.5,2,-90"])
+    assert args.theta0_deg == "-15,3,4" and args.psi0_deg == "-.5,2,-90"
+    args = parser.parse_args(["calibrate", "x.toml", "--bends-deg", "-80,-40,0"])
+    assert args.bends_deg == "-80,-40,0"
+    args = parser.parse_args(["estimate", "seq", "--out", "o", "--theta0-sigma-deg", "-2"])
+    assert args.theta0_sigma_deg == -2.0  # refused later, by name, as any bad value is
+    with pytest.raises(SystemExit):
+        parser.parse_args(["estimate", "seq", "--out", "o", "--theta0-deg", "-x,3,4"])
+    assert "expected one argument" in capsys.readouterr().err

@@ -147,3 +147,21 @@ def test_the_many_sequences_benchmark_compares_dask_with_the_serial_run(
     assert "3 sequences x 20 frames, method chain" in text
     assert "identical theta.csv files: yes; failed sequences: 0" in text
     assert "local Dask cluster, 2 workers" in text and "target: at least 1.7x" in text
+
+
+def test_several_workers_without_dask_run_here_with_a_note(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without Dask installed, asking for several workers runs every job in this process,
+    in order, with a one-line warning that says so; a scheduler still needs Dask."""
+    import importlib.util
+
+    from apcc_graph.estimation import many
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "distributed" else real(name, *a))
+    monkeypatch.setitem(sys.modules, "distributed", None)  # its import fails too
+    with pytest.warns(UserWarning, match=r"Dask is not installed .* this process \(3 workers"):
+        assert many.map_tasks(pow, [(2, 3), (3, 2)], workers=3) == [8, 9]
+    with pytest.raises(ValueError, match="a Dask scheduler needs Dask"):
+        many.map_tasks(pow, [(2, 3)], scheduler="tcp://127.0.0.1:1")

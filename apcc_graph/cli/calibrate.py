@@ -68,7 +68,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     syn.add_argument("--theta-max-deg", type=float,
                      help="true theta_max, degrees (default: the largest |bend|)")
     syn.add_argument("--bends-deg", help="comma-separated bends, degrees, one image each "
-                     "(write --bends-deg=-80,-40,0 when the first is negative)")
+                     "(e.g. --bends-deg -80,-40,0)")
     syn.add_argument("--noise", type=non_negative,
                      help="sensor noise, grey levels (default 1)")
     syn.add_argument("--tilt-deg", type=float,
@@ -133,7 +133,7 @@ def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
     if missing:
         raise UserError(f"--render needs {', '.join(missing)}")
     bends = [math.radians(v) for v in degree_list(
-        args.bends_deg, "--bends-deg", " (write --bends-deg=-80,-40,0 when the first is negative)")]
+        args.bends_deg, "--bends-deg", ", e.g. -80,-40,0")]
     theta_max = max(abs(b) for b in bends) if args.theta_max_deg is None else math.radians(
         args.theta_max_deg)
     segment = Segment(args.length, k=args.k, delta_max=math.radians(args.delta_max_deg or 0.0),

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
@@ -27,8 +28,20 @@ class UserError(Exception):
     """A mistake in what the user asked for; printed as one line, exit code 1."""
 
 
+NEGATIVE = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d*\.?\d[^,]*(,[^,]*)+$")
+"""What a value that starts with a minus sign looks like: a negative number, or a
+comma-separated list whose first value is negative (``--theta0-deg -15,3,4``). No option of
+``apcc-graph`` looks like that, so the parser reads it as the option's value."""
+
+
 class Parser(argparse.ArgumentParser):
-    """An argument parser whose usage errors are one line on stderr and exit code 1."""
+    """An argument parser whose usage errors are one line on stderr and exit code 1, and that
+    takes a list of numbers starting with a negative one as a value (:data:`NEGATIVE`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # argparse decides with this pattern whether "-15,3,4" is a value or an unknown option
+        self._negative_number_matcher = NEGATIVE
 
     def error(self, message: str) -> NoReturn:
         """Print ``message`` as one line with a pointer to ``--help`` and exit with code 1."""

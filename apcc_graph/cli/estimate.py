@@ -70,8 +70,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      "(default: %(default)s)")
     _add_smoother_arguments(est)
     est.add_argument("--theta0-deg", default=None,
-                     help="starting configuration, degrees, one per segment; write "
-                     "--theta0-deg=-10,5,3 when the first angle is negative. Without it the "
+                     help="starting configuration, degrees, one per segment (e.g. "
+                     "--theta0-deg -10,5,3). Without it the "
                      "start is unknown: found from the first second of images (longer if the "
                      "robot barely moved), or refused if the recording never tells it")
     est.add_argument("--theta0-sigma-deg", type=float, default=None,
@@ -83,8 +83,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      "with --theta0-deg (and --psi0-deg)")
     est.add_argument("--psi0-deg", default=None,
                      help="with --spatial: the bending planes at the start, degrees, one per "
-                     "segment (default: 0); write --psi0-deg=-90,0,45 when the first is "
-                     "negative")
+                     "segment (default: 0; e.g. --psi0-deg -90,0,45)")
     est.add_argument("--noise-px", type=float, default=1.0,
                      help="pixel noise of the tracks, standard deviation per coordinate "
                      "(default: %(default)s); sets the outlier threshold and the sigmas")

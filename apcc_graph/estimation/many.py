@@ -200,22 +200,23 @@ def map_tasks(function: Callable[..., Result], jobs: Sequence[tuple[Any, ...]],
     (default: one per core) or on the cluster at ``scheduler``. ``function`` must be
     importable by the workers (a module-level function) and should not raise: a job's failure
     is best returned as its result."""
-    if scheduler is None and (workers == 1 or (workers is None and not _has_dask())):
+    if scheduler is None and (workers == 1 or not _has_dask(workers)):
         return [function(*job) for job in tqdm(jobs, desc=label, disable=not progress)]
     return _on_dask(function, list(jobs), workers, scheduler, progress, label)
 
 
-def _has_dask() -> bool:
-    """Whether ``dask.distributed`` is installed; without it the default is one worker, in
-    process, with a warning."""
+def _has_dask(workers: int | None) -> bool:
+    """Whether to run on a local Dask cluster of ``workers`` (``None``: one per core, and
+    in this process on a one-core machine). Without ``dask.distributed`` installed: no, with
+    a one-line warning, whatever ``workers`` asked."""
     import importlib.util
 
-    if importlib.util.find_spec("distributed") is not None and (os.cpu_count() or 1) > 1:
-        return True
     if importlib.util.find_spec("distributed") is None:
+        asked = "" if workers is None else f" ({workers} workers were asked for)"
         warnings.warn('Dask is not installed (pip install "apcc-graph[dask]"): the sequences '
-                      "run one after the other in this process", stacklevel=3)
-    return False
+                      f"run one after the other in this process{asked}", stacklevel=3)
+        return False
+    return workers is not None or (os.cpu_count() or 1) > 1
 
 
 def _on_dask(function: Callable[..., Result], jobs: list[tuple[Any, ...]], workers: int | None,
@@ -224,8 +225,8 @@ def _on_dask(function: Callable[..., Result], jobs: list[tuple[Any, ...]], worke
     try:
         from distributed import Client, as_completed
     except ImportError:
-        raise ValueError('more than one worker needs Dask: pip install "apcc-graph[dask]" '
-                         "(or use --workers 1)") from None
+        raise ValueError('a Dask scheduler needs Dask: pip install "apcc-graph[dask]" '
+                         "(or leave out --scheduler to run here)") from None
     cluster = None
     if scheduler is None:
         cluster = _local_cluster(workers or os.cpu_count() or 1)
