@@ -106,9 +106,12 @@ def detect_markers(gray: NDArray[np.uint8], detector: cv2.aruco.ArucoDetector
 
 @functools.lru_cache(maxsize=4)
 def _undistortion_maps(camera: TipCamera) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    return cv2.initUndistortRectifyMap(camera.intrinsic_matrix, camera.distortion_coefficients,
-                                       None, camera.intrinsic_matrix,
-                                       (camera.width, camera.height), cv2.CV_32FC1)
+    size, K = (camera.width, camera.height), camera.intrinsic_matrix
+    if camera.model == "fisheye":
+        return cv2.fisheye.initUndistortRectifyMap(
+            K, camera.distortion_coefficients.reshape(4, 1), np.eye(3), K, size, cv2.CV_32FC1)
+    return cv2.initUndistortRectifyMap(K, camera.distortion_coefficients, None, K, size,
+                                       cv2.CV_32FC1)
 
 
 def undistorted_image(image: NDArray[np.uint8], camera: TipCamera

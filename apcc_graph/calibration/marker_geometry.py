@@ -214,6 +214,9 @@ def fit_marker_corners(
     Raises:
         ValueError: OpenCV finds no pose for the base marker (degenerate corners).
     """
+    if camera.model != "pinhole":
+        raise ValueError(f"a {camera.model} camera: undistort the image first "
+                         "(marker_detection.undistorted_image)")
     base_px = np.asarray(base_corners, dtype=float).reshape(4, 2)
     tip_px = np.asarray(tip_corners, dtype=float).reshape(4, 2)
     observed = np.concatenate([base_px, tip_px])

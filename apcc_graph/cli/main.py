@@ -17,12 +17,13 @@ from apcc_graph.cli import (
     evaluate,
     montecarlo,
     plot,
+    robot,
     simulate,
     track,
 )
 from apcc_graph.cli.common import Parser, UserError
 
-SUBCOMMANDS = (calibrate, simulate, track, estimate, evaluate, montecarlo, plot, bench)
+SUBCOMMANDS = (calibrate, simulate, track, estimate, evaluate, montecarlo, plot, robot, bench)
 """The modules of the subcommands, in the order ``--help`` lists them."""
 
 

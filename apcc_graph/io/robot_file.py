@@ -34,7 +34,7 @@ _SEGMENT_KEYS = {
     "delta_max": "delta_max_deg",
     "theta_max": "theta_max_deg",
 }
-_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "tip_T_cam")
+_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "model", "tip_T_cam")
 
 
 def _segment_from(table: TomlTable) -> Segment:
@@ -72,8 +72,9 @@ def _pose_from(table: TomlTable) -> np.ndarray:
 
 def camera_from_table(table: TomlTable, mounting: bool = True) -> TipCamera:
     """A :class:`TipCamera` from its TOML table: ``fx``, ``fy``, ``cx``, ``cy``, ``width``,
-    ``height``, the optional ``distortion`` (OpenCV order) and, with ``mounting``, the optional
-    ``tip_T_cam`` table (default identity). Without ``mounting`` a ``tip_T_cam`` key is unknown.
+    ``height``, the optional ``distortion`` (OpenCV order) and its ``model`` (``"pinhole"``, the
+    default, or ``"fisheye"``) and, with ``mounting``, the optional ``tip_T_cam`` table (default
+    identity). Without ``mounting`` a ``tip_T_cam`` key is unknown.
 
     The camera table of ``robot.toml`` and of a calibration-images folder's ``calibration.toml``
     (docs/formats.md).
@@ -87,6 +88,8 @@ def camera_from_table(table: TomlTable, mounting: bool = True) -> TipCamera:
     values: dict[str, Any] = {name: table.number(name) for name in ("fx", "fy", "cx", "cy")}
     values.update(width=table.integer("width"), height=table.integer("height"))
     values["distortion"] = tuple(table.numbers("distortion", default=[]))
+    if table.has("model"):
+        values["model"] = table.string("model")
     try:
         return TipCamera(**values, tip_T_cam=tip_T_cam)
     except ValueError as exc:
@@ -204,6 +207,7 @@ def robot_to_toml(robot: Robot, markers: Mapping[float, np.ndarray] | None = Non
                 "width": cam.width,
                 "height": cam.height,
                 "distortion": list(cam.distortion),
+                **({} if cam.model == "pinhole" else {"model": cam.model}),
                 "tip_T_cam": _pose_to(cam.tip_T_cam),
             }
         segments.append(entry)

@@ -21,6 +21,9 @@ from apcc_graph.model.segment import require_finite
 
 OPENCV_DISTORTION_SIZES = (0, 4, 5, 8, 12, 14)
 """Numbers of distortion coefficients that OpenCV accepts."""
+CAMERA_MODELS = ("pinhole", "fisheye")
+"""OpenCV's distortion models a :class:`TipCamera` takes: radial-tangential (``cv2``) and the
+equidistant fisheye (``cv2.fisheye``)."""
 
 
 def validate_pose(name: str, matrix: ArrayLike, tolerance: float = 1e-6) -> FloatArray:
@@ -77,9 +80,13 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 convergence instead, so that ``bearings`` inverts ``project`` to machine precision."""
 
 
-def _undistort(uv: FloatArray, K: FloatArray, dist: FloatArray) -> FloatArray:
+def _undistort(uv: FloatArray, K: FloatArray, dist: FloatArray, model: str = "pinhole"
+               ) -> FloatArray:
     """Normalised image coordinates of distorted pixels, iterated to convergence."""
     src = np.ascontiguousarray(uv, dtype=np.float64).reshape(-1, 1, 2)
+    if model == "fisheye":
+        return cv2.fisheye.undistortPoints(src, K, dist.reshape(4, 1), None, None, None,
+                                           _UNDISTORT_CRITERIA).reshape(-1, 2)
     if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
         out = cv2.undistortPointsIter(src, K, dist, None, None, _UNDISTORT_CRITERIA)
     else:  # OpenCV 5 takes the criteria in undistortPoints itself
@@ -95,9 +102,13 @@ class TipCamera:
         fx, fy: focal lengths in pixels, > 0.
         cx, cy: principal point in pixels.
         width, height: image size in pixels, positive integers.
-        distortion: OpenCV distortion coefficients (0, 4, 5, 8, 12 or 14 of them).
+        distortion: OpenCV distortion coefficients: for ``model="pinhole"`` 0, 4, 5, 8, 12 or
+            14 of them (radial-tangential: k1, k2, p1, p2[, k3, ...]); for ``"fisheye"`` the 4 of
+            OpenCV's fisheye model (equidistant: k1, k2, k3, k4; ``cv2.fisheye``).
         tip_T_cam: 4x4 pose of the camera in the tip frame (default identity: looking along the
             backbone).
+        model: ``"pinhole"`` (default) or ``"fisheye"``: which of OpenCV's distortion models
+            ``distortion`` belongs to.
 
     Raises:
         ValueError: a field is not finite, out of range or of the wrong size; the message names it.
@@ -111,6 +122,7 @@ class TipCamera:
     height: int
     distortion: tuple[float, ...] = ()
     tip_T_cam: FloatArray = field(default_factory=lambda: np.eye(4))
+    model: str = "pinhole"
 
     def __post_init__(self) -> None:
         for name in ("fx", "fy", "cx", "cy"):
@@ -131,6 +143,13 @@ class TipCamera:
             require_finite("TipCamera", f"distortion[{i}]", d)
             for i, d in enumerate(self.distortion)
         )
+        if self.model not in CAMERA_MODELS:
+            raise ValueError(f"TipCamera.model = {self.model!r}: expected one of {CAMERA_MODELS}")
+        if self.model == "fisheye" and len(dist) != 4:
+            raise ValueError(
+                f"TipCamera.distortion has {len(dist)} coefficients: the fisheye model takes 4 "
+                "(OpenCV's k1, k2, k3, k4)"
+            )
         if len(dist) not in OPENCV_DISTORTION_SIZES:
             raise ValueError(
                 f"TipCamera.distortion has {len(dist)} coefficients: expected one of "
@@ -142,7 +161,8 @@ class TipCamera:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, TipCamera):
             return NotImplemented
-        return (self.fx, self.fy, self.cx, self.cy, self.width, self.height, self.distortion) == (
+        return (self.fx, self.fy, self.cx, self.cy, self.width, self.height, self.distortion,
+                self.model) == (
             other.fx,
             other.fy,
             other.cx,
@@ -150,6 +170,7 @@ class TipCamera:
             other.width,
             other.height,
             other.distortion,
+            other.model,
         ) and bool(np.array_equal(self.tip_T_cam, other.tip_T_cam))
 
     def __hash__(self) -> int:
@@ -162,6 +183,7 @@ class TipCamera:
                 self.width,
                 self.height,
                 self.distortion,
+                self.model,
                 self.tip_T_cam.tobytes(),
             )
         )
@@ -191,6 +213,11 @@ class TipCamera:
         if not self.distortion:
             uvw = pts @ self.intrinsic_matrix.T
             return uvw[:, :2] / uvw[:, 2:3]
+        if self.model == "fisheye":
+            uv, _ = cv2.fisheye.projectPoints(
+                pts.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.intrinsic_matrix,
+                self.distortion_coefficients.reshape(4, 1))
+            return uv.reshape(-1, 2)
         uv, _ = cv2.projectPoints(
             pts, np.zeros(3), np.zeros(3), self.intrinsic_matrix, self.distortion_coefficients
         )
@@ -209,7 +236,7 @@ class TipCamera:
         if len(uv) == 0:
             return np.zeros((0, 3))
         if self.distortion:
-            xy = _undistort(uv, self.intrinsic_matrix, self.distortion_coefficients)
+            xy = _undistort(uv, self.intrinsic_matrix, self.distortion_coefficients, self.model)
         else:
             xy = np.column_stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy])
         rays = np.column_stack([xy, np.ones(len(xy))])
