@@ -1,7 +1,8 @@
 """``apcc-graph bench``: benchmarks against named peers measured in the same run (figures, never
 tests). The benchmarks themselves are in :mod:`~apcc_graph.cli.bench_front_end`,
 :mod:`~apcc_graph.cli.bench_back_end`, :mod:`~apcc_graph.cli.bench_reliability` and
-:mod:`~apcc_graph.cli.bench_start` and :mod:`~apcc_graph.cli.bench_real`; their work
+:mod:`~apcc_graph.cli.bench_start`, :mod:`~apcc_graph.cli.bench_real` and
+:mod:`~apcc_graph.cli.bench_live`; their work
 in :mod:`apcc_graph.bench`."""
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import argparse
 from apcc_graph.cli import (
     bench_back_end,
     bench_front_end,
+    bench_live,
     bench_real,
     bench_reliability,
     bench_start,
@@ -22,7 +24,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     """Add ``bench`` and its benchmarks to the subcommands."""
     examples = [*bench_front_end.EXAMPLES.values(), *bench_back_end.EXAMPLES.values(),
                 *bench_reliability.EXAMPLES.values(), *bench_start.EXAMPLES.values(),
-                *bench_real.EXAMPLES.values()]
+                *bench_real.EXAMPLES.values(), *bench_live.EXAMPLES.values()]
     bench = commands.add_parser(
         "bench", help="benchmarks against named peers (figures, not tests)",
         description="Speed and accuracy figures of apcc_graph and of named peers measured in "
@@ -36,3 +38,4 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     bench_reliability.add_parsers(benches)
     bench_start.add_parsers(benches)
     bench_real.add_parsers(benches)
+    bench_live.add_parsers(benches)

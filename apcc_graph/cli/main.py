@@ -15,6 +15,7 @@ from apcc_graph.cli import (
     calibrate,
     estimate,
     evaluate,
+    live,
     montecarlo,
     plot,
     robot,
@@ -23,7 +24,8 @@ from apcc_graph.cli import (
 )
 from apcc_graph.cli.common import Parser, UserError
 
-SUBCOMMANDS = (calibrate, simulate, track, estimate, evaluate, montecarlo, plot, robot, bench)
+SUBCOMMANDS = (calibrate, simulate, track, estimate, live, evaluate, montecarlo, plot, robot,
+               bench)
 """The modules of the subcommands, in the order ``--help`` lists them."""
 
 

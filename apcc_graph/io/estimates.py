@@ -12,6 +12,7 @@ Files are written atomically (temporary file, then rename).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -97,6 +98,48 @@ def save_estimate(estimate: Estimate, folder: str | Path) -> list[Path]:
         atomic_write_text(path, tum_text(estimate.timestamps, tips[:, i]))
         written.append(path)
     return written
+
+
+class AppendedEstimate:
+    """``theta.csv`` and ``tips_seg_<i>.tum`` of an estimate that grows frame by frame (a live
+    run): each final estimate is appended to every file and flushed, so a run that stops or
+    crashes leaves complete, readable files of everything estimated so far.
+
+    Args:
+        folder: where the files go (created if needed; the files are replaced).
+        n_segments: segments of the robot.
+        forward: ``(F, S) angles -> (F, S, 4, 4)`` tip poses (the robot's kinematics).
+    """
+
+    def __init__(self, folder: str | Path, n_segments: int,
+                 forward: Callable[[np.ndarray], np.ndarray]) -> None:
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.forward = forward
+        self.rows = 0
+        self._theta = open(self.folder / "theta.csv", "w", encoding="utf-8")  # noqa: SIM115
+        self._tips = [open(self.folder / f"tips_seg_{i + 1}.tum", "w",  # noqa: SIM115
+                           encoding="utf-8") for i in range(n_segments)]
+        self._theta.write(",".join(theta_columns(n_segments)) + "\n")
+        self._theta.flush()
+
+    def append(self, frame: int, timestamp: float, thetas: np.ndarray, sigmas: np.ndarray
+               ) -> None:
+        """One frame's final estimate (angles and sigmas in radians), written and flushed."""
+        fields = [str(frame), format_number(timestamp)]
+        fields += [format_number(v) for v in np.concatenate([thetas, sigmas]).tolist()]
+        self._theta.write(",".join(fields) + "\n")
+        tips = self.forward(np.asarray(thetas, dtype=float)[None])[0]
+        for i, out in enumerate(self._tips):
+            out.write(tum_text(np.array([timestamp]), tips[i][None]))
+        for out in (self._theta, *self._tips):
+            out.flush()
+        self.rows += 1
+
+    def close(self) -> None:
+        """Close the files."""
+        for out in (self._theta, *self._tips):
+            out.close()
 
 
 @dataclass(frozen=True)
