@@ -22,17 +22,18 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.frontend.tracking import KLTTracker, TrackerOptions
+from apcc_graph.frontend.tracking import KLTTracker, TrackerOptions, tracks_of
 from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence as RobotSequence
-from apcc_graph.model.sequence import Tracks
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 """The message types a camera's topic may carry (ROS 2 names; ROS 1's map to them)."""
@@ -133,26 +134,22 @@ def track_recording(streams: Sequence[CameraStream], robot: Robot,
         assert camera is not None
         frame_of = {int(i): f for f, i in enumerate(wanted)}
         tracker = KLTTracker((camera.width, camera.height), options)
-        frames, ids, uvs = [], [], []
-        for index, image in stream.images():
-            f = frame_of.get(index)
-            if f is None:
-                continue
-            try:
-                track_ids, uv = tracker.update(image)
-            except ValueError as error:
-                raise ValueError(f"{stream.name}, image {index}: {error}") from None
-            frames.append(np.full(len(track_ids), f, dtype=np.int64))
-            ids.append(track_ids)
-            uvs.append(uv)
-            bar.update()
-        if len(frames) != len(wanted):
-            raise ValueError(f"{stream.name}: {len(frames)} of its {len(wanted)} matched images "
+        chosen = ((frame_of[i], image, f"{stream.name}, image {i}")
+                  for i, image in stream.images() if i in frame_of)
+        read = [0]
+        tracks[cam] = tracks_of(tracker, chosen, partial(_tick, read, bar))
+        if read[0] != len(wanted):
+            raise ValueError(f"{stream.name}: {read[0]} of its {len(wanted)} matched images "
                              "could be read (the recording ends early or is damaged)")
-        tracks[cam] = Tracks(np.concatenate(frames), np.concatenate(ids), np.concatenate(uvs))
     bar.close()
     times = matched.timestamps - matched.timestamps[0]
     return RobotSequence(robot, times, tracks), matched
+
+
+def _tick(read: list[int], bar: Any) -> None:
+    """One more image tracked: counted, and shown."""
+    read[0] += 1
+    bar.update()
 
 
 # ------------------------------------------------------------------------------ videos

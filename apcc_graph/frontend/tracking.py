@@ -17,7 +17,7 @@ sequence format (``tracks/cam_<i>.csv``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -165,13 +165,29 @@ class KLTTracker:
 def track_images(images: Iterable[NDArray], size: tuple[int, int] | None = None,
                  options: TrackerOptions | None = None) -> Tracks:
     """Track a camera's images (in frame order) into the sequence format's :class:`Tracks`."""
-    tracker = KLTTracker(size, options)
+    return tracks_of(KLTTracker(size, options),
+                     ((f, image, f"frame {f}") for f, image in enumerate(images)))
+
+
+def tracks_of(tracker: KLTTracker, images: Iterable[tuple[int, NDArray, str]],
+              on_image: Callable[[], object] | None = None) -> Tracks:
+    """The :class:`Tracks` of ``(frame, image, where)`` in order, followed by ``tracker``
+    (``where`` names the image in errors; ``on_image`` is called after each).
+
+    Raises:
+        ValueError: an image of the wrong size or layout, named by its ``where``.
+    """
     frames, ids, uvs = [], [], []
-    for f, image in enumerate(images):
-        track_ids, uv = tracker.update(image)
+    for f, image, where in images:
+        try:
+            track_ids, uv = tracker.update(image)
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from None
         frames.append(np.full(len(track_ids), f, dtype=np.int64))
         ids.append(track_ids)
         uvs.append(uv)
+        if on_image is not None:
+            on_image()
     if not frames:
         return Tracks(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)))
     return Tracks(np.concatenate(frames), np.concatenate(ids), np.concatenate(uvs))
@@ -218,27 +234,28 @@ def track_sequence(folder: str | Path, force: bool = False,
             camera = sequence.robot.cameras[cam]
             assert camera is not None
             tracker = KLTTracker((camera.width, camera.height), options)
-            frames, ids, uvs = [], [], []
-            for f in range(sequence.n_frames):
-                path = files.get(f, folder / "images" / f"cam_{cam + 1}" / f"{f:06d}.png")
-                if f not in files or not path.is_file():
-                    raise ValueError(f"{path}: missing; camera {cam + 1} needs one image per "
-                                     f"frame (0..{sequence.n_frames - 1})")
-                image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-                if image is None:
-                    raise ValueError(f"{path}: not a readable image")
-                try:
-                    track_ids, uv = tracker.update(image)
-                except ValueError as error:
-                    raise ValueError(f"{path}: {error}") from None
-                frames.append(np.full(len(track_ids), f, dtype=np.int64))
-                ids.append(track_ids)
-                uvs.append(uv)
-                bar.update()
-            texts[cam] = tracks_csv(Tracks(np.concatenate(frames), np.concatenate(ids),
-                                           np.concatenate(uvs)))
+            images = _folder_images(folder, cam, files, sequence.n_frames)
+            texts[cam] = tracks_csv(tracks_of(tracker, images, bar.update))
     written = []
     for cam, text in texts.items():
         atomic_write_text(targets[cam], text)
         written.append(targets[cam])
     return written
+
+
+def _folder_images(folder: Path, cam: int, files: dict[int, Path], n_frames: int
+                   ) -> Iterator[tuple[int, NDArray, str]]:
+    """Camera ``cam``'s images of a sequence folder, one per frame, read in order.
+
+    Raises:
+        ValueError: an image missing or unreadable, named by its file.
+    """
+    for f in range(n_frames):
+        path = files.get(f, folder / "images" / f"cam_{cam + 1}" / f"{f:06d}.png")
+        if f not in files or not path.is_file():
+            raise ValueError(f"{path}: missing; camera {cam + 1} needs one image per frame "
+                             f"(0..{n_frames - 1})")
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise ValueError(f"{path}: not a readable image")
+        yield f, image, str(path)
