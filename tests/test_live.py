@@ -43,9 +43,9 @@ class _Clock:
 
 
 def test_under_overload_the_newest_frame_is_taken_and_the_others_dropped() -> None:
-    """Processing takes 0.1 s while frames arrive every 1/30 s: after each frame, the frames
-    that arrived meanwhile are dropped but the newest (0, then 3, 6, 9, 12), each estimated
-    0.1 s after it arrived; nothing queues up."""
+    """Smoothing takes 0.1 s while frames arrive every 1/30 s: the frames that arrive meanwhile
+    are tracked but not smoothed, but the newest (0, then 3, 6, 9, 12), each estimated 0.1 s
+    after it arrived; nothing queues up."""
     clock = _Clock()
     live = LiveEstimator(load_robot(ROBOT), clock=clock, sleep=clock.sleep)
     process = live._process
@@ -61,6 +61,7 @@ def test_under_overload_the_newest_frame_is_taken_and_the_others_dropped() -> No
     assert all(e.latency == pytest.approx(0.1) for e in got)
     final = [fr.frame for e in got for fr in e.final] + [fr.frame for fr in live.finish()]
     assert final == [0, 3, 6, 9, 12]  # every processed frame once, numbered by the source
+    assert all(t._frame == 13 for t in live.trackers.values())  # every frame was tracked
 
 
 def test_without_real_time_every_frame_is_estimated() -> None:
@@ -130,3 +131,27 @@ def test_live_interrupted_mid_run_leaves_complete_readable_outputs(
     assert main(["live", "--video", "a.mp4", "--robot", str(ROBOT), "--out",
                  str(tmp_path / "x")]) == 1
     assert "--video names 1 files for 3 cameras" in capsys.readouterr().err
+
+
+def test_a_machine_that_does_not_keep_up_is_warned_about() -> None:
+    """Once more frames were dropped than smoothed (after 30 smoothed), a LiveWarning says so,
+    once; a run that keeps up says nothing."""
+    from apcc_graph.estimation.live import LiveWarning
+
+    def many() -> Iterator[tuple[int, float, dict[int, np.ndarray]]]:
+        frames = list(_frames(25))
+        for f in range(120):
+            yield f, f / 30.0, frames[f % 25][2]
+
+    clock = _Clock()
+    live = LiveEstimator(load_robot(ROBOT), clock=clock, sleep=clock.sleep)
+    process = live._process
+
+    def busy(*args: object) -> object:
+        clock.now += 0.1
+        return process(*args)  # type: ignore[arg-type]
+
+    live._process = busy  # type: ignore[method-assign]
+    with pytest.warns(LiveWarning, match=r"frames were dropped and 30 smoothed") as caught:
+        list(live.run(many()))
+    assert len([w for w in caught if w.category is LiveWarning]) == 1

@@ -30,9 +30,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--out/theta.csv and tips_seg_<i>.tum and flushed, so a crash loses nothing already "
         "estimated; a line on stderr shows the rate, the latency and the current angles; "
         "Ctrl-C ends cleanly (the frames still in the window are smoothed and written). A "
-        "recording plays at its own pace: when the estimator falls behind, the frames that "
-        "arrived while it was busy are dropped but the newest, and counted (--no-realtime "
-        "takes every frame, as fast as it can). See docs/estimation.md, \"Live\".",
+        "recording plays at its own pace: every frame is tracked, but when the smoother falls "
+        "behind, the frames that arrived while it was busy are not smoothed but the newest, "
+        "and are counted as dropped (--no-realtime smooths every frame, as fast as it can). "
+        "See docs/estimation.md, \"Live\".",
         epilog=EXAMPLE, formatter_class=FORMATTER,
         parents=[force_option("write into an --out folder that is not empty")])
     live.add_argument("source", nargs="?", default=None, help="a ROS 1 bag file or ROS 2 folder")

@@ -11,20 +11,28 @@
    (their final estimates), the rate and the latency.
 
 **Real time and overload.** A recording is played at its own pace (``realtime``): a frame
-*arrives* at the wall time its timestamp says, counted from the first. When the estimator is
-busy while frames arrive, only the newest arrived frame is taken next and the ones before it
-are dropped (and counted): the estimate lags by at most one frame's processing, never by a
-growing queue. The trackers then follow their tracks over the longer step. A camera device
-delivers its newest image when asked (OpenCV's buffer of one), so it drops by itself.
+*arrives* at the wall time its timestamp says, counted from the first. Every frame is tracked
+(a few milliseconds per camera), so the tracks stay as continuous as offline, unless it has
+waited more than :data:`MAX_BEHIND` while newer frames arrived (then the trackers step over
+it). A tracked frame after which a newer one has already arrived is not smoothed, unless the
+last smoothed frame is :data:`MAX_GAP` old: it is dropped from the estimate (counted), and the
+smoother takes a newer one. The lag stays bounded (never a growing queue), and the smoother
+sees a lower frame rate with the same tracks. (Dropping frames before tracking, as a first
+version did, broke the tracks: with KLT steps three frames long the estimate ran 60 to 120
+degrees off on ``apcc-graph bench live``.) A camera device delivers its newest image when
+asked (OpenCV's buffer of one), so it drops by itself.
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
+import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.estimation.smoother import FixedLagSmoother
@@ -36,8 +44,21 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
 
+MAX_GAP = 0.2
+"""Seconds of the source: under overload a frame is smoothed anyway when the last smoothed
+frame is this old (the smoother then sees at least five frames a second; with gaps of half a
+second it took each for a pause, re-acquired, and ran 100 degrees off)."""
+MAX_BEHIND = 0.1
+"""Seconds: a frame that has waited this long while newer ones arrived is not even tracked
+(the trackers then step over it), so the lag stays bounded when tracking alone is slower
+than the frames."""
+
 Frame = tuple[int, float, dict[int, NDArray]]
 """``(index in the source, timestamp in seconds, camera -> image)``."""
+
+
+class LiveWarning(UserWarning):
+    """The live loop drops more frames than it smooths."""
 
 
 @dataclass(frozen=True)
@@ -145,32 +166,56 @@ class LiveEstimator:
         self.dropped = 0
         self._done: deque[float] = deque()
         self._index: dict[int, int] = {}  # the smoother's frame -> the source's index
+        self._smoothed, self._warned = 0, False
+        self._pool = ThreadPoolExecutor(max_workers=max(len(self.trackers), 1))
 
     def run(self, frames: Iterator[Frame]) -> Iterator[LiveEstimate]:
-        """An estimate per processed frame of ``frames`` (:func:`recording_frames`,
+        """An estimate per smoothed frame of ``frames`` (:func:`recording_frames`,
         :func:`device_frames`), until the source ends or the iterator is closed."""
         source = iter(frames)
         pending = next(source, None)
         start: tuple[float, float] | None = None  # wall time and source time of the first
+        smoothed = -np.inf  # source time of the last smoothed frame
         while pending is not None:
             index, t, images = pending
             start = start or (self.clock(), t)
+            arrival = start[0] + (t - start[1])
             pending = next(source, None)
             if self.realtime:
-                wait = start[0] + (t - start[1]) - self.clock()
-                if wait > 0:
-                    self.sleep(wait)
-                while pending is not None and start[0] + (pending[1] - start[1]) <= self.clock():
-                    self.dropped += 1  # a newer frame has arrived: this one is dropped
-                    index, t, images = pending
-                    pending = next(source, None)
-            arrival = start[0] + (t - start[1])
-            yield self._process(index, t, images, arrival)
+                if arrival > self.clock():
+                    self.sleep(arrival - self.clock())
+                elif self._waiting(pending, start) and self.clock() - arrival > MAX_BEHIND:
+                    self.dropped += 1  # too far behind even to track it
+                    continue
+            tracks = self._track(images)
+            if self.realtime and self._waiting(pending, start) and t - smoothed < MAX_GAP:
+                self.dropped += 1  # tracked, not smoothed: a newer frame is waiting
+                continue
+            smoothed = t
+            yield self._process(index, t, tracks, arrival)
 
-    def _process(self, index: int, t: float, images: dict[int, NDArray], arrival: float
-                 ) -> LiveEstimate:
-        """One frame tracked and smoothed."""
-        tracks = {cam: self.trackers[cam].update(image) for cam, image in images.items()}
+    def _waiting(self, pending: Frame | None, start: tuple[float, float]) -> bool:
+        """Whether the next frame has already arrived."""
+        return pending is not None and start[0] + (pending[1] - start[1]) <= self.clock()
+
+    def _track(self, images: dict[int, NDArray]) -> dict[int, tuple[NDArray, NDArray]]:
+        """Each camera's tracks in its new image, the cameras in parallel threads (OpenCV's
+        optical flow and corner detection release the interpreter)."""
+        cams = sorted(images)
+        found = self._pool.map(lambda cam: self.trackers[cam].update(images[cam]), cams)
+        return dict(zip(cams, found, strict=True))
+
+    def _process(self, index: int, t: float, tracks: dict[int, tuple[NDArray, NDArray]],
+                 arrival: float) -> LiveEstimate:
+        """One tracked frame smoothed (and, once, a warning when most frames are dropped)."""
+        self._smoothed += 1
+        if not self._warned and self._smoothed >= 30 and self.dropped > self._smoothed:
+            self._warned = True
+            warnings.warn(f"live: by frame {index} {self.dropped} frames were dropped and "
+                          f"{self._smoothed} smoothed: this machine does not keep up with the "
+                          "recording, and frames dropped before tracking break the tracks (the "
+                          "estimate can run far off); --no-realtime estimates every frame",
+                          LiveWarning, stacklevel=2)
         estimate = self.smoother.update(FrameObservations(t, tracks))
         self._index[estimate.frame] = index
         final = self._numbered(self.smoother.pop_final())
@@ -185,6 +230,7 @@ class LiveEstimator:
     def finish(self) -> list[SmootherFrame]:
         """The final estimates of the frames still in the window (the others came with the
         estimates, in ``final``)."""
+        self._pool.shutdown(wait=False)
         return self._numbered(self.smoother.finish())
 
     def _numbered(self, frames: list[SmootherFrame]) -> list[SmootherFrame]:
