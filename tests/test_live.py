@@ -42,19 +42,25 @@ class _Clock:
         self.now += seconds
 
 
-def test_under_overload_the_newest_frame_is_taken_and_the_others_dropped() -> None:
-    """Smoothing takes 0.1 s while frames arrive every 1/30 s: the frames that arrive meanwhile
-    are tracked but not smoothed, but the newest (0, then 3, 6, 9, 12), each estimated 0.1 s
-    after it arrived; nothing queues up."""
+def _busy_estimator(seconds: float) -> LiveEstimator:
+    """A live estimator on a controlled clock whose every smoothing takes ``seconds``."""
     clock = _Clock()
     live = LiveEstimator(load_robot(ROBOT), clock=clock, sleep=clock.sleep)
     process = live._process
 
     def busy(*args: object) -> object:
-        clock.now += 0.1
+        clock.now += seconds
         return process(*args)  # type: ignore[arg-type]
 
     live._process = busy  # type: ignore[method-assign]
+    return live
+
+
+def test_under_overload_the_newest_frame_is_taken_and_the_others_dropped() -> None:
+    """Smoothing takes 0.1 s while frames arrive every 1/30 s: the frames that arrive meanwhile
+    are tracked but not smoothed, but the newest (0, then 3, 6, 9, 12), each estimated 0.1 s
+    after it arrived; nothing queues up."""
+    live = _busy_estimator(0.1)
     got = list(live.run(_frames(13)))
     assert [e.index for e in got] == [0, 3, 6, 9, 12]
     assert [e.dropped for e in got] == [0, 2, 4, 6, 8] and live.dropped == 8
@@ -143,15 +149,7 @@ def test_a_machine_that_does_not_keep_up_is_warned_about() -> None:
         for f in range(120):
             yield f, f / 30.0, frames[f % 25][2]
 
-    clock = _Clock()
-    live = LiveEstimator(load_robot(ROBOT), clock=clock, sleep=clock.sleep)
-    process = live._process
-
-    def busy(*args: object) -> object:
-        clock.now += 0.1
-        return process(*args)  # type: ignore[arg-type]
-
-    live._process = busy  # type: ignore[method-assign]
+    live = _busy_estimator(0.1)
     with pytest.warns(LiveWarning, match=r"frames were dropped and 30 smoothed") as caught:
         list(live.run(many()))
     assert len([w for w in caught if w.category is LiveWarning]) == 1
