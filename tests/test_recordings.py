@@ -176,7 +176,7 @@ def test_bags_that_cannot_be_read_are_refused_by_name(
     assert main(["track", str(truncated), *args]) == 1
     assert str(truncated) in capsys.readouterr().err
     assert main(["track", str(tmp_path / "absent.bag"), *args]) == 1
-    assert "no such bag" in capsys.readouterr().err
+    assert "absent.bag: no such sequence folder or ROS bag" in capsys.readouterr().err
     assert not (tmp_path / "seq").exists()
 
 

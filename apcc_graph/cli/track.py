@@ -50,6 +50,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> str:
     """Track the recording and return what was written."""
+    if args.source is not None and not Path(args.source).exists():
+        raise UserError(f"{args.source}: no such sequence folder or ROS bag")
     if args.video is None and args.source is not None and _is_sequence_folder(args.source):
         if args.robot is not None or args.out is not None or args.topics is not None:
             raise UserError(f"{args.source} is a sequence folder: its tracks are written in it "
@@ -62,8 +64,9 @@ def run(args: argparse.Namespace) -> str:
 
 
 def _is_sequence_folder(source: str) -> bool:
+    """A folder that is not a ROS 2 bag (which holds ``metadata.yaml``)."""
     path = Path(source)
-    return path.is_dir() and (path / "robot.toml").is_file()
+    return path.is_dir() and not (path / "metadata.yaml").is_file()
 
 
 def _track_recording(args: argparse.Namespace) -> str:
