@@ -35,10 +35,6 @@ from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence as RobotSequence
 
-IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
-"""The message types a camera's topic may carry (ROS 2 names; ROS 1's map to them)."""
-
-
 @dataclass(frozen=True)
 class CameraStream:
     """One camera's images: their times and a way to read them again, in order.
