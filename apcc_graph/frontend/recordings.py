@@ -35,6 +35,7 @@ from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence as RobotSequence
 
+
 @dataclass(frozen=True)
 class CameraStream:
     """One camera's images: their times and a way to read them again, in order.
