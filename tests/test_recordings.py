@@ -1,6 +1,6 @@
-"""Recordings besides image folders: ROS 1 and ROS 2 bags (written here with ``rosbags``) and
-video files, matched to common frames by time and tracked into the same tracks as the image
-folder of the same images."""
+"""Recordings besides image folders: ROS 1 and ROS 2 bags (written here with ``rosbags`` from
+a rendered sequence) and video files, matched to common frames by time and tracked into the
+same tracks as the image folder of the same images."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import cv2
 import numpy as np
 import pytest
 
-from apcc_graph.bench.tracking import texture
 from apcc_graph.cli import main
 from apcc_graph.frontend.recordings import match_frames
 from apcc_graph.io.robot_file import load_robot
@@ -25,13 +24,16 @@ TOPICS = ["/tip1/image", "/tip2/image", "/tip3/image"]
 
 
 def _images() -> list[list[np.ndarray]]:
-    """Per camera, FRAMES 640x480 grey images panning across a texture at its own speed."""
-    out = []
-    for cam in range(3):
-        base = texture(10 + cam, (480, 720))
-        out.append([np.ascontiguousarray(base[:, (3 + cam) * f:(3 + cam) * f + 640])
-                    for f in range(FRAMES)])
-    return out
+    """Per camera, FRAMES rendered 640x480 grey images: the simulator's robot moving through
+    its textured room (procedural textures, so the test needs no image package)."""
+    from apcc_graph.simulation.render import render_images, textured_room
+    from apcc_graph.simulation.simulator import simulate
+
+    robot = load_robot(ROBOT)
+    sim = simulate(robot, FRAMES, noise_px=0.0, outlier_fraction=0.0, seed=2, scene="room")
+    room = textured_room(sim.scene_centre, sim.room_half_size, texture_source="procedural")
+    return [list(render_images(room, robot.cameras[cam], sim.world_T_cam[cam], seed=cam))
+            for cam in robot.camera_segments]
 
 
 @pytest.fixture(scope="module")
@@ -147,6 +149,29 @@ def test_unsynchronised_cameras_are_matched_and_what_was_dropped_is_counted(
     assert seq.n_frames == FRAMES - 1 and seq.timestamps[5] == pytest.approx(6 / 30.0)
 
 
+def test_the_topics_can_be_named_in_robot_toml(
+        images: list[list[np.ndarray]], folder_tracks: Sequence, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Each camera's ``topic`` in robot.toml replaces --topics (here in reverse name order, so
+    the bag's sorted topics would be wrong); a camera without one is named."""
+    bag = write_bag(tmp_path / "run", images[::-1], "mono8", "sqlite3")  # /tip1 holds camera 3
+    text = ROBOT.read_text()
+    parts = text.split("[segments.camera]")
+    assert len(parts) == 4
+    named = parts[0] + "".join(f'[segments.camera]\ntopic = "{TOPICS[2 - i]}"' + p
+                               for i, p in enumerate(parts[1:]))
+    robot_file = tmp_path / "robot.toml"
+    robot_file.write_text(named)
+    assert main(["track", str(bag), "--robot", str(robot_file), "--out", str(tmp_path / "s")]) == 0
+    seq = load_sequence(tmp_path / "s")
+    for cam in range(3):
+        np.testing.assert_allclose(seq.tracks[cam].uv, folder_tracks.tracks[cam].uv, atol=1e-4)
+    robot_file.write_text(named.replace(f'topic = "{TOPICS[0]}"', "", 1))
+    assert main(["track", str(bag), "--robot", str(robot_file), "--out",
+                 str(tmp_path / "t")]) == 1
+    assert "cameras of segments [3] name no topic" in capsys.readouterr().err
+
+
 def test_match_frames() -> None:
     t = np.arange(10) * 0.1
     found = match_frames([t, t + 0.02, np.r_[t[:4], t[5:]] - 0.01])
@@ -202,8 +227,7 @@ def test_videos_of_different_lengths(images: list[list[np.ndarray]], tmp_path: P
     assert seq.n_frames == FRAMES - 2
     np.testing.assert_allclose(np.diff(seq.timestamps), 1 / 30.0, atol=1e-3)
     corr = seq.correspondences(0, 0, FRAMES - 3)
-    shift = np.median(corr.uv_b - corr.uv_a, axis=0)  # camera 1 pans 3 px a frame
-    assert abs(shift[0] + 3.0 * (FRAMES - 3)) < 0.5 and abs(shift[1]) < 0.5
+    assert len(corr) > 50  # tracks run through the frames of the shorter video
     assert main(["track", "--video", files[0], "--robot", str(ROBOT), "--out",
                  str(tmp_path / "x")]) == 1
     assert "--video names 1 files for 3 cameras" in capsys.readouterr().err

@@ -121,6 +121,8 @@ def _frames(args: argparse.Namespace, robot: object):  # noqa: ANN202 (an iterat
             raise UserError(f"--video names {len(files)} files for {len(cams)} cameras")
         streams = video_streams(files)
     else:
-        topics = None if args.topics is None else [t for t in args.topics.split(",") if t]
+        from apcc_graph.cli.track import _topics
+
+        topics = _topics(args.topics, args.robot, robot)
         streams = bag_streams(args.source, topics, len(cams))
     return recording_frames(streams, cams, args.sync_tolerance)

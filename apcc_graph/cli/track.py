@@ -39,7 +39,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     trk.add_argument("--out", default=None, help="the sequence folder a bag or videos become")
     trk.add_argument("--topics", default=None,
                      help="a bag's image topics, comma-separated, one per camera from the base "
-                     "(default: its image topics sorted, if there is one per camera)")
+                     "(default: each camera's topic in robot.toml, else the bag's image topics "
+                     "sorted, if there is one per camera)")
     trk.add_argument("--video", default=None,
                      help="video files, comma-separated, one per camera from the base")
     trk.add_argument("--sync-tolerance", type=float, default=None,
@@ -92,9 +93,7 @@ def _track_recording(args: argparse.Namespace) -> str:
                             "camera, from the base)")
         streams = video_streams(files)
     else:
-        topics = None if args.topics is None else [t for t in args.topics.split(",") if t]
-        if topics is not None and len(topics) != n:
-            raise UserError(f"--topics names {len(topics)} topics for {n} cameras")
+        topics = _topics(args.topics, args.robot, robot)
         streams = bag_streams(args.source, topics, n)
     sequence, matched = track_recording(streams, robot, args.sync_tolerance, progress=True)
     save_sequence(sequence, out)
@@ -103,3 +102,24 @@ def _track_recording(args: argparse.Namespace) -> str:
     lines += [f"  {s.name}: {len(s.timestamps)} images, {d} dropped"
               for s, d in zip(streams, matched.dropped, strict=True)]
     return "\n".join([*lines, f"wrote {out}"])
+
+
+def _topics(text: str | None, robot_file: str, robot: object) -> list[str] | None:
+    """A bag's topics, one per camera from the base: ``--topics``, else the ``topic`` of every
+    camera in ``robot.toml``, else ``None`` (the bag's image topics, sorted)."""
+    from apcc_graph.io.robot_file import camera_topics
+
+    cams = list(robot.camera_segments)  # type: ignore[attr-defined]
+    if text is not None:
+        topics = [t for t in text.split(",") if t]
+        if len(topics) != len(cams):
+            raise UserError(f"--topics names {len(topics)} topics for {len(cams)} cameras")
+        return topics
+    named = camera_topics(robot_file)
+    if not named:
+        return None
+    missing = [c + 1 for c in cams if c not in named]
+    if missing:
+        raise UserError(f"{robot_file}: cameras of segments {missing} name no topic (give "
+                        "every camera a topic, or --topics)")
+    return [named[c] for c in cams]

@@ -34,7 +34,8 @@ _SEGMENT_KEYS = {
     "delta_max": "delta_max_deg",
     "theta_max": "theta_max_deg",
 }
-_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "model", "tip_T_cam")
+_CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "model", "topic",
+                "tip_T_cam")
 
 
 def _segment_from(table: TomlTable) -> Segment:
@@ -90,6 +91,8 @@ def camera_from_table(table: TomlTable, mounting: bool = True) -> TipCamera:
     values["distortion"] = tuple(table.numbers("distortion", default=[]))
     if table.has("model"):
         values["model"] = table.string("model")
+    if table.has("topic"):
+        table.string("topic")  # a ROS image topic: checked here, read by camera_topics
     try:
         return TipCamera(**values, tip_T_cam=tip_T_cam)
     except ValueError as exc:
@@ -112,6 +115,17 @@ def robot_from_toml(data: dict[str, Any], path: str | Path = "<robot.toml>") -> 
         cameras.append(camera_from_table(table.table("camera")) if table.has("camera") else None)
     markers_from_toml(data, path)
     return Robot(segments, cameras)
+
+
+def camera_topics(path: str | Path) -> dict[int, str]:
+    """Segment (0-based) -> the ROS image topic its camera's table names (``topic``), for
+    cameras that name one (``apcc-graph track`` and ``live`` read a bag's topics from it)."""
+    data = read_toml(path)
+    out = {}
+    for i, table in enumerate(TomlTable(path, "", data).tables("segments")):
+        if table.has("camera") and table.table("camera").has("topic"):
+            out[i] = table.table("camera").string("topic")
+    return out
 
 
 def markers_from_toml(data: dict[str, Any], path: str | Path = "<robot.toml>"
