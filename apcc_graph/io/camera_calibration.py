@@ -29,6 +29,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from apcc_graph.io.text_files import MAX_TOML_BYTES, bom_length
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
 
@@ -77,9 +78,14 @@ def read_camera_file(path: str | Path, camera: str | None = None) -> CameraIntri
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        with path.open("rb") as fh:
+            raw = fh.read(MAX_TOML_BYTES + 1)
     except OSError as exc:
         raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    if len(raw) > MAX_TOML_BYTES:
+        raise ValueError(f"{path}: larger than {MAX_TOML_BYTES >> 20} MB; expected a camera "
+                         "calibration file (a few KB)")
+    text = raw[bom_length(raw[:4], path):].decode("utf-8", errors="replace")
     if text.lstrip().startswith(("%YAML", "<?xml", "<opencv_storage", "{")) or \
             "!!opencv-matrix" in text or path.suffix.lower() in (".xml", ".json"):
         return _opencv(path, camera)

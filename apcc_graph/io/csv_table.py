@@ -4,7 +4,9 @@ The fast path hands the whole file to ``numpy.loadtxt`` (its C parser; about 1 s
 of four full-precision numbers on this project's machines). Only when that fails does a slow
 line-by-line pass run, to say exactly which line and column is wrong. Line numbers are 1-based and
 count the header, as an editor shows them. Blank lines are refused (they would shift the mapping
-from rows to lines) except at the end of the file.
+from rows to lines) except at the end of the file. A UTF-8 byte-order mark is read; a line longer
+than 64 KB is refused after reading the file in 1 MB chunks, before any parsing
+(:mod:`~apcc_graph.io.text_files`).
 """
 
 from __future__ import annotations
@@ -17,7 +19,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.io.text_files import MAX_LINE_BYTES, QUOTE_CHARS, bom_length, quote
 from apcc_graph.model.arrays import FloatArray
+
+_CHUNK = 1 << 20
+_QUOTE_BYTES = QUOTE_CHARS * 4
 
 
 class CsvTable:
@@ -64,19 +70,85 @@ class CsvTable:
 
 
 def read_header(path: Path) -> list[str]:
-    """The column names of the first line (stripped); a missing or empty file is an error."""
+    """The column names of the first line (stripped); a missing or empty file is an error.
+
+    A UTF-8 byte-order mark is dropped; a UTF-16/32 one, or a first line longer than
+    :data:`~apcc_graph.io.text_files.MAX_LINE_BYTES`, is refused (only that much is read).
+    """
     try:
-        with path.open("r", encoding="utf-8", newline="") as fh:
-            first = fh.readline()
+        with path.open("rb") as fh:
+            raw = fh.readline(MAX_LINE_BYTES + 1)
     except FileNotFoundError:
         raise ValueError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise ValueError(f"{path}: is a folder, expected a CSV file") from None
+    raw = raw[bom_length(raw[:4], path):]
+    if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
+        raise _long_line(path, 1, raw)
+    try:
+        first = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text: {exc}") from None
+        raise ValueError(f"{path}: not UTF-8 text (line 1: byte 0x{raw[exc.start]:02x}); save "
+                         "it as UTF-8") from None
     if not first.strip():
         raise ValueError(f"{path}: line 1: expected a header line, the file is empty")
     return [name.strip() for name in first.rstrip("\r\n").split(",")]
+
+
+def _long_line(path: Path, line: int, start: bytes) -> ValueError:
+    return ValueError(f"{path}: line {line}: longer than {MAX_LINE_BYTES} bytes (starts "
+                      f"{quote(start)}); expected one row of comma-separated numbers per line")
+
+
+def _scan_lines(path: Path) -> tuple[bool, int | None]:
+    """Read the file in chunks once: whether it has a data row after the header, and the
+    1-based line of the first blank line that is followed by a non-blank one.
+
+    Raises:
+        ValueError: a line longer than ``MAX_LINE_BYTES`` (found without holding more than a
+            chunk in memory).
+    """
+    line = 1  # the line the next byte belongs to
+    length = 0  # bytes of that line seen so far
+    ends_cr = False  # whether the bytes of that line seen so far end in a carriage return
+    first_blank: int | None = None
+    last_full = 0  # last line that is not blank
+    head = b""
+    with path.open("rb") as fh:
+        while chunk := fh.read(_CHUNK):
+            buf = np.frombuffer(chunk, dtype=np.uint8)
+            ends = np.flatnonzero(buf == 10)
+            starts = np.concatenate([[0], ends + 1])
+            lengths = np.append(ends, len(buf)) - starts  # bytes before each newline / chunk end
+            lengths[0] += length
+            head = (head + chunk[:_QUOTE_BYTES])[:_QUOTE_BYTES]  # of the line going on
+            too_long = np.flatnonzero(lengths > MAX_LINE_BYTES)
+            if len(too_long):
+                k = int(too_long[0])
+                start = head if k == 0 else chunk[starts[k]:starts[k] + _QUOTE_BYTES]
+                raise _long_line(path, line + k, start)
+            # a line is blank when it is empty or only a carriage return
+            cr_end = np.zeros(len(ends), dtype=bool)
+            inner = ends > 0
+            cr_end[inner] = buf[ends[inner] - 1] == 13
+            if len(ends) and ends[0] == 0:
+                cr_end[0] = ends_cr
+            blank = (lengths[:-1] == 0) | ((lengths[:-1] == 1) & cr_end)
+            numbers = line + np.arange(len(ends))
+            if first_blank is None and blank[numbers > 1].any():
+                first_blank = int(numbers[(numbers > 1) & blank][0])
+            if (~blank).any():
+                last_full = max(last_full, int(numbers[~blank][-1]))
+            line += len(ends)
+            length = int(lengths[-1])
+            if len(ends):
+                head = chunk[starts[-1]:starts[-1] + _QUOTE_BYTES]
+            if length:
+                ends_cr = bool(buf[-1] == 13)
+            if length and not (length == 1 and ends_cr):
+                last_full = max(last_full, line)
+    blank_inside = first_blank if first_blank is not None and first_blank < last_full else None
+    return last_full > 1, blank_inside
 
 
 def read_table(path: Path, expected: Sequence[str]) -> CsvTable:
@@ -97,14 +169,11 @@ def read_table(path: Path, expected: Sequence[str]) -> CsvTable:
     expected = list(expected)
     if names != expected:
         raise ValueError(_header_message(path, names, expected))
-    raw = path.read_bytes()
-    body_start = raw.find(b"\n") + 1 if b"\n" in raw else len(raw)
-    body = raw[body_start:].rstrip(b"\r\n")
-    if not body:
+    has_rows, blank = _scan_lines(path)
+    if not has_rows:
         return CsvTable(path, names, np.zeros((0, len(names))))
-    blank = _first_blank_line(body)
     if blank is not None:
-        raise ValueError(f"{path}: line {blank + 1}: blank line; expected "
+        raise ValueError(f"{path}: line {blank}: blank line; expected "
                          f"{len(names)} fields ({','.join(names)})")
     try:
         values = np.loadtxt(path, delimiter=",", skiprows=1, comments=None, ndmin=2,
@@ -129,16 +198,6 @@ def _header_message(path: Path, names: list[str], expected: list[str]) -> str:
             f"(header: {','.join(expected)})")
 
 
-def _first_blank_line(body: bytes) -> int | None:
-    """1-based line (within ``body``, whose line 1 is file line 2) of the first blank line."""
-    if body.startswith((b"\n", b"\r\n")):
-        return 1
-    found = [pos for pos in (body.find(b"\n\n"), body.find(b"\n\r\n")) if pos >= 0]
-    if not found:
-        return None
-    return body.count(b"\n", 0, min(found) + 1) + 1
-
-
 _NUMBER = re.compile(
     r"\s*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)\s*", re.IGNORECASE
 )
@@ -147,7 +206,7 @@ _NUMBER = re.compile(
 
 def _diagnose(path: Path, names: list[str]) -> None:
     """Find the first bad line the slow way and raise a precise error."""
-    with path.open("r", encoding="utf-8") as fh:
+    with path.open("r", encoding="utf-8-sig", errors="replace") as fh:
         next(fh)
         for number, line in enumerate(fh, start=2):
             fields = line.rstrip("\r\n").split(",")
@@ -157,7 +216,7 @@ def _diagnose(path: Path, names: list[str]) -> None:
             for name, field in zip(names, fields, strict=True):
                 if _NUMBER.fullmatch(field) is None:
                     raise ValueError(f"{path}: line {number}, column '{name}': "
-                                     f"{field.strip()!r} is not a number")
+                                     f"{quote(field.strip())} is not a number")
     raise ValueError(f"{path}: could not be read as a numeric CSV table")
 
 

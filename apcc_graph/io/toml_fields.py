@@ -13,6 +13,8 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from apcc_graph.io.text_files import MAX_TOML_BYTES, read_small_text
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - exercised on Python 3.10 only
@@ -20,19 +22,17 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML file; a missing file or a syntax error raises ``ValueError`` naming the file."""
+    """Parse a TOML file; a missing file or a syntax error raises ``ValueError`` naming the file.
+
+    A UTF-8 byte-order mark is read and ignored; another encoding's is named, and a file larger
+    than :data:`~apcc_graph.io.text_files.MAX_TOML_BYTES` is refused unread.
+    """
     path = Path(path)
+    text = read_small_text(path, MAX_TOML_BYTES, "a TOML file")
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ValueError(f"{path}: is a folder, expected a TOML file") from None
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML: {exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not valid UTF-8 text: {exc}") from None
 
 
 class TomlTable:

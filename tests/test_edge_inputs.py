@@ -1,0 +1,148 @@
+"""Inputs at the edges a new user meets: byte-order marks, huge files, units that are off by a
+factor, estimates and truths that do not match frame for frame, options that are not numbers.
+Each is read, refused or warned about by name (no traceback, no silent nonsense)."""
+
+from __future__ import annotations
+
+import codecs
+import shutil
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from apcc_graph.cli import main
+from apcc_graph.io import load_robot, load_sequence
+from apcc_graph.io.csv_table import read_table
+from apcc_graph.io.text_files import MAX_LINE_BYTES
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "data" / "sequences" / "planar_three"
+
+
+def one_line_error(capsys: pytest.CaptureFixture[str]) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err, err
+    assert err.startswith("apcc-graph: error: "), err
+    return err
+
+
+@pytest.fixture
+def sample_copy(tmp_path: Path) -> Path:
+    folder = tmp_path / "seq"
+    shutil.copytree(SAMPLE, folder, ignore=shutil.ignore_patterns("images"))
+    return folder
+
+
+# ----------------------------------------------------------------------------- byte-order marks
+@pytest.mark.parametrize("name", ["frames.csv", "tracks/cam_1.csv", "robot.toml"])
+def test_a_utf8_byte_order_mark_is_read(sample_copy: Path, name: str) -> None:
+    path = sample_copy / name
+    path.write_bytes(codecs.BOM_UTF8 + path.read_bytes())
+    seq = load_sequence(sample_copy)
+    ref = load_sequence(SAMPLE)
+    assert np.array_equal(seq.timestamps, ref.timestamps)
+    assert np.array_equal(seq.tracks[0].uv, ref.tracks[0].uv)
+    assert seq.robot == ref.robot
+
+
+@pytest.mark.parametrize(("codec", "name"), [("utf-16", "UTF-16"), ("utf-32", "UTF-32")])
+@pytest.mark.parametrize("file", ["frames.csv", "robot.toml"])
+def test_another_encodings_byte_order_mark_is_named(sample_copy: Path, codec: str, name: str,
+                                                    file: str) -> None:
+    path = sample_copy / file
+    path.write_bytes(path.read_text(encoding="utf-8").encode(codec))  # Python writes the BOM
+    with pytest.raises(ValueError, match=rf"^{path}: the file is {name} .*expected UTF-8"):
+        load_sequence(sample_copy)
+
+
+def test_cli_names_a_utf16_frames_file(sample_copy: Path, tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    path = sample_copy / "frames.csv"
+    path.write_bytes(path.read_text(encoding="utf-8").encode("utf-16"))
+    assert main(["estimate", str(sample_copy), "--method", "chain",
+                 "--out", str(tmp_path / "est")]) == 1
+    assert f"{path}: the file is UTF-16 (little-endian) text" in one_line_error(capsys)
+    assert not (tmp_path / "est").exists()
+
+
+def test_a_byte_order_mark_in_theta_csv_and_backbone_poses_is_read(tmp_path: Path) -> None:
+    from apcc_graph.io.backbone_poses import load_backbone_poses
+    from apcc_graph.io.estimates import load_theta_table
+
+    theta = tmp_path / "theta.csv"
+    theta.write_bytes(codecs.BOM_UTF8 + b"frame,timestamp,theta_1,sigma_1\n0,0.0,0.1,nan\n")
+    assert load_theta_table(theta).thetas.tolist() == [[0.1]]
+    source = ROOT / "data" / "real_tdcr" / "slow_free_space" / "backbone_poses.csv"
+    poses = tmp_path / "backbone_poses.csv"
+    poses.write_bytes(codecs.BOM_UTF8 + source.read_bytes())
+    assert np.array_equal(load_backbone_poses(poses).arclengths,
+                          load_backbone_poses(source).arclengths)
+
+
+# ------------------------------------------------------------------------------------ huge files
+def _long_line_file(path: Path, megabytes: int, newline_at: int | None = None) -> None:
+    """A header and then ``megabytes`` MB of digits and commas with no line break (or one after
+    ``newline_at`` bytes)."""
+    block = b"1234567," * (1 << 17)  # 1 MB
+    with path.open("wb") as fh:
+        fh.write(b"frame,track_id,u,v\n")
+        if newline_at is not None:
+            fh.write(b"0,1,2.0,3.0\n" * (newline_at // 12))
+        for _ in range(megabytes):
+            fh.write(block)
+
+
+@pytest.mark.parametrize("rows_before", [None, 300_000])
+def test_a_huge_line_is_refused_with_bounded_memory_and_message(tmp_path: Path,
+                                                                rows_before: int | None) -> None:
+    path = tmp_path / "cam_1.csv"
+    _long_line_file(path, 40, rows_before)
+    line = 2 if rows_before is None else 2 + rows_before // 12
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError) as info:
+            read_table(path, ["frame", "track_id", "u", "v"])
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    message = str(info.value)
+    assert message.startswith(f"{path}: line {line}: longer than {MAX_LINE_BYTES} bytes "
+                              "(starts '1234567,1234567,")
+    assert len(message) < len(str(path)) + 200
+    assert peak < 8 * (1 << 20), f"peak {peak / 2**20:.1f} MB for a 40 MB line"
+
+
+def test_a_huge_header_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "frames.csv"
+    path.write_bytes(b"frame," * 20_000)
+    with pytest.raises(ValueError, match=rf"^{path}: line 1: longer than {MAX_LINE_BYTES} bytes "
+                       r"\(starts 'frame,frame,.{40,60}'\.\.\.\)"):
+        read_table(path, ["frame", "timestamp"])
+
+
+def test_a_long_field_is_quoted_short(tmp_path: Path) -> None:
+    path = tmp_path / "cam_1.csv"
+    path.write_text("frame,track_id,u,v\n0,1,2," + "x" * 5000 + "\n")
+    with pytest.raises(ValueError) as info:
+        read_table(path, ["frame", "track_id", "u", "v"])
+    assert str(info.value) == (f"{path}: line 2, column 'v': '{'x' * 60}'... is not a number")
+
+
+def test_a_huge_toml_file_is_refused_unread(tmp_path: Path) -> None:
+    path = tmp_path / "robot.toml"
+    with path.open("wb") as fh:
+        fh.write(b"# " + b"x" * (17 << 20) + b"\n")
+    with pytest.raises(ValueError, match=rf"^{path}: larger than 16 MB; expected a TOML file"):
+        load_robot(path)
+
+
+def test_cli_refuses_a_huge_tracks_line_in_one_short_line(
+        sample_copy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = sample_copy / "tracks" / "cam_2.csv"
+    _long_line_file(path, 4)
+    assert main(["estimate", str(sample_copy), "--method", "chain",
+                 "--out", str(tmp_path / "est")]) == 1
+    err = one_line_error(capsys)
+    assert f"{path}: line 2: longer than" in err and len(err) < len(str(path)) + 250
