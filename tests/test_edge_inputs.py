@@ -146,3 +146,19 @@ def test_cli_refuses_a_huge_tracks_line_in_one_short_line(
                  "--out", str(tmp_path / "est")]) == 1
     err = one_line_error(capsys)
     assert f"{path}: line 2: longer than" in err and len(err) < len(str(path)) + 250
+
+
+# ---------------------------------------------------------------------------- option values
+@pytest.mark.parametrize("command", ["track", "live"])
+@pytest.mark.parametrize("value", ["-1", "nan", "inf", "-0.5", "soon"])
+def test_sync_tolerance_is_checked_when_parsed(tmp_path: Path, command: str, value: str,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    argv = [command, str(SAMPLE), f"--sync-tolerance={value}", "--out", str(tmp_path / "o")]
+    with pytest.raises(SystemExit) as stop:  # argparse's own mistakes
+        main(argv)
+    assert stop.value.code == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith(f"apcc-graph {command}: error: ")
+    assert f"argument --sync-tolerance: '{value}'" in err
+    assert ("expected a number >= 0" in err) or ("is not a number" in err)
+    assert not (tmp_path / "o").exists()

@@ -11,7 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from apcc_graph.cli.common import FORMATTER, UserError, check_output_folder, force_option, int_list
+from apcc_graph.cli.common import (
+    FORMATTER,
+    UserError,
+    check_output_folder,
+    force_option,
+    int_list,
+    non_negative,
+)
 
 EXAMPLE = (
     "examples:\n"
@@ -46,7 +53,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     live.add_argument("--theta0-deg", default=None,
                       help="starting configuration, degrees, one per segment (default straight)")
     live.add_argument("--lag", type=float, default=1.0, help="smoother lag, seconds (default 1)")
-    live.add_argument("--sync-tolerance", type=float, default=None,
+    live.add_argument("--sync-tolerance", type=non_negative, default=None,
                       help="seconds between the cameras' images of one frame (bag, videos)")
     live.add_argument("--no-realtime", action="store_true",
                       help="process every frame as fast as possible instead of at the "

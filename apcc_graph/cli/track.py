@@ -6,7 +6,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from apcc_graph.cli.common import FORMATTER, UserError, check_output_folder, force_option
+from apcc_graph.cli.common import (
+    FORMATTER,
+    UserError,
+    check_output_folder,
+    force_option,
+    non_negative,
+)
 
 EXAMPLE = (
     "examples:\n"
@@ -43,7 +49,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                      "sorted, if there is one per camera)")
     trk.add_argument("--video", default=None,
                      help="video files, comma-separated, one per camera from the base")
-    trk.add_argument("--sync-tolerance", type=float, default=None,
+    trk.add_argument("--sync-tolerance", type=non_negative, default=None,
                      help="seconds: how far apart the cameras' images of one frame may be "
                      "(default: half the first camera's median frame interval)")
     trk.set_defaults(run=run)
