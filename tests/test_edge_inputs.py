@@ -162,3 +162,47 @@ def test_sync_tolerance_is_checked_when_parsed(tmp_path: Path, command: str, val
     assert f"argument --sync-tolerance: '{value}'" in err
     assert ("expected a number >= 0" in err) or ("is not a number" in err)
     assert not (tmp_path / "o").exists()
+
+
+_NAN, _INF = float("nan"), float("inf")
+
+
+@pytest.mark.parametrize(("keywords", "error", "message"), [
+    ({"noise_px": _NAN}, ValueError, "noise_px = nan: expected a finite number > 0 (pixels)"),
+    ({"noise_px": _INF}, ValueError, "noise_px = inf: expected a finite number > 0 (pixels)"),
+    ({"noise_px": -1.0}, ValueError, "noise_px = -1.0: expected a finite number > 0 (pixels)"),
+    ({"noise_px": 0}, ValueError, "noise_px = 0: expected a finite number > 0 (pixels)"),
+    ({"noise_px": "1"}, TypeError, "noise_px = '1': expected a number (pixels), got str"),
+    ({"noise_px": True}, TypeError, "noise_px = True: expected a number (pixels), got bool"),
+    ({"theta0_sigma": _NAN}, ValueError, "theta0_sigma = nan: expected a finite number > 0 "
+     "(radians)"),
+    ({"theta0_sigma": -0.1}, ValueError, "theta0_sigma = -0.1: expected a finite number > 0"),
+    ({"theta0_sigma": _INF}, ValueError, "theta0_sigma = inf: expected a finite number > 0"),
+    ({"theta0_sigma": "0.1"}, TypeError, "theta0_sigma = '0.1': expected a number (radians)"),
+    ({"spatial": "yes"}, TypeError, "spatial = 'yes': expected True or False"),
+    ({"progress": "no"}, TypeError, "progress = 'no': expected True or False"),
+    ({"method": "Chain"}, ValueError, "method = 'Chain': expected one of chain, batch"),
+    ({"theta0": [0.1, _NAN, 0.0]}, ValueError, "theta0[1] = nan: expected a finite angle"),
+    ({"theta0": [0.1, 0.1, _INF]}, ValueError, "theta0[2] = inf: expected a finite angle"),
+    ({"spatial": True, "psi0": [_NAN, 0.0, 0.0]}, ValueError, "psi0[0] = nan: expected a "
+     "finite angle"),
+])
+def test_estimate_names_each_keyword_as_written(keywords: dict, error: type[Exception],
+                                                message: str) -> None:
+    import apcc_graph
+
+    sample = load_sequence(SAMPLE)
+    args = {"method": "chain", "theta0": sample.thetas[0], **keywords}
+    with pytest.raises(error) as info:
+        apcc_graph.estimate(sample, **args)
+    assert str(info.value).startswith(message), str(info.value)
+    assert "GraphOptions" not in str(info.value)
+
+
+@pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
+def test_cli_names_noise_px_as_the_flag(tmp_path: Path, value: str,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["estimate", str(SAMPLE), "--method", "chain", f"--noise-px={value}",
+                 "--out", str(tmp_path / "est")]) == 1
+    err = one_line_error(capsys)
+    assert "--noise-px" in err and "GraphOptions" not in err and "noise_px" not in err

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import replace
+from numbers import Real
 from os import PathLike
 
 import numpy as np
@@ -91,8 +93,11 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     Raises:
         TypeError: ``sequence`` is not a :class:`~apcc_graph.model.sequence.Sequence` (a path
             must be loaded first, with ``apcc_graph.load_sequence``); an options record of
-            the wrong kind (named), or an argument this function does not take (named).
-        ValueError: an unknown method; ``theta0`` not one finite angle per segment within its
+            the wrong kind (named), or an argument this function does not take (named); a
+            ``noise_px`` or ``theta0_sigma`` that is not a number, a ``spatial`` or
+            ``progress`` that is not a bool (named).
+        ValueError: an unknown method; a ``noise_px`` or ``theta0_sigma`` that is not finite
+            and > 0 (named as the keyword); ``theta0`` not one finite angle per segment within its
             ``theta_max`` (radians); a sequence without a single observation;
             ``theta0_sigma`` or ``psi0`` without ``theta0``; ``psi0`` without ``spatial``.
         UnknownStartError: (a ``ValueError``) no ``theta0``, and the recording never tells
@@ -111,6 +116,10 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         raise TypeError(f"sequence: expected a Sequence, got {type(sequence).__name__}{hint}")
     if method not in METHODS:
         raise ValueError(f"method = {method!r}: expected one of {', '.join(METHODS)}")
+    _check_keywords(noise_px=(noise_px, "pixels"), theta0_sigma=(theta0_sigma, "radians"))
+    for name, flag in (("spatial", spatial), ("progress", progress)):
+        if not isinstance(flag, bool | np.bool_):
+            raise TypeError(f"{name} = {flag!r}: expected True or False")
     graph, robustness, settings = _records(method, graph, robustness, settings)
     if noise_px is not None:
         graph = replace(graph, threshold_px=float(noise_px))
@@ -158,6 +167,19 @@ def _model_fit(sequence: Sequence, result: Estimate, graph: GraphOptions,
     if not fit.explained:
         warnings.warn(f"{result.method}: {fit.message()}", ModelFitWarning, stacklevel=3)
     return fit
+
+
+def _check_keywords(**values: tuple[object, str]) -> None:
+    """Each keyword argument ``name=(value, unit)`` is ``None`` or a finite number > 0; a
+    mistake is named as the caller wrote it (the keyword, not the options record it fills)."""
+    for name, (value, unit) in values.items():
+        if value is None:
+            continue
+        if isinstance(value, bool | np.bool_) or not isinstance(value, Real):
+            raise TypeError(f"{name} = {value!r}: expected a number ({unit}), got "
+                            f"{type(value).__name__}")
+        if not (math.isfinite(float(value)) and float(value) > 0.0):
+            raise ValueError(f"{name} = {value!r}: expected a finite number > 0 ({unit})")
 
 
 def _records(method: str, graph: GraphOptions | None, robustness: Robustness | None,
