@@ -116,7 +116,8 @@ def test_evaluate_and_plot_refuse_a_truth_of_another_shape(tmp_path: Path, estim
                   str(tmp_path / "f.png")]):
         assert main(argv) == 1
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "7 x 3" in err[0]
+        assert len(err) == 1 and "beyond the last frame of" in err[0]
+        assert "the truth 7 frames" in err[0]
     assert not (tmp_path / "f.png").exists()
     np.testing.assert_equal(sorted(p.name for p in tmp_path.iterdir()), ["short"])
 

@@ -206,3 +206,83 @@ def test_cli_names_noise_px_as_the_flag(tmp_path: Path, value: str,
                  "--out", str(tmp_path / "est")]) == 1
     err = one_line_error(capsys)
     assert "--noise-px" in err and "GraphOptions" not in err and "noise_px" not in err
+
+
+# ------------------------------------------------------------- estimates against their truth
+def _theta_file(folder: Path, frames: list[int], offset: float = 0.0,
+                times: np.ndarray | None = None) -> Path:
+    """A theta.csv of the sample's true angles (plus ``offset`` rad) at ``frames``."""
+    truth = load_sequence(SAMPLE)
+    ts = truth.timestamps if times is None else times
+    folder.mkdir(parents=True, exist_ok=True)
+    lines = ["frame,timestamp,theta_1,theta_2,theta_3,sigma_1,sigma_2,sigma_3"]
+    for f in frames:
+        values = [*(truth.thetas[f] + offset).tolist(), 0.01, 0.01, 0.01]
+        lines.append(f"{f},{float(ts[f])!r}," + ",".join(repr(v) for v in values))
+    (folder / "theta.csv").write_text("\n".join(lines) + "\n")
+    return folder
+
+
+def test_theta_csv_with_skipped_frames_is_read(tmp_path: Path) -> None:
+    from apcc_graph.io.estimates import load_theta_table
+
+    est = _theta_file(tmp_path / "est", [0, 1, 5, 6, 9])
+    table = load_theta_table(est / "theta.csv")
+    assert table.frames.tolist() == [0, 1, 5, 6, 9]
+    assert table.frame_numbers().tolist() == [0, 1, 5, 6, 9]
+
+
+@pytest.mark.parametrize(("frames", "line", "message"), [
+    ([0, 1, 1, 2], 4, "frame 1 after frame 1; expected strictly increasing frame numbers"),
+    ([0, 3, 2], 4, "frame 2 after frame 3; expected strictly increasing"),
+])
+def test_theta_csv_frames_must_increase(tmp_path: Path, frames: list[int], line: int,
+                                        message: str) -> None:
+    from apcc_graph.io.estimates import load_theta_table
+
+    est = _theta_file(tmp_path / "est", frames)
+    with pytest.raises(ValueError, match=rf"theta.csv: line {line}, column 'frame': {message}"):
+        load_theta_table(est / "theta.csv")
+
+
+def test_evaluate_and_plot_read_an_estimate_with_gaps(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    kept = [0, 1] + list(range(5, 200, 2))
+    est = _theta_file(tmp_path / "est", kept, offset=np.radians(0.5))
+    assert main(["evaluate", str(est), "--truth", str(SAMPLE), "--window", "50"]) == 0
+    out = capsys.readouterr().out
+    assert f"compared on the {len(kept)} frames the estimate has, of the truth's 200" in out
+    rms = [float(v) for v in out.splitlines()[2].split()[2:]]
+    np.testing.assert_allclose(rms, 0.5, atol=1e-4)  # every row against its own frame
+    assert "frames      0-99" in out  # window labels are the estimate's frame numbers
+    assert main(["plot", str(est), "--truth", str(SAMPLE), "--output",
+                 str(tmp_path / "f.png")]) == 0
+    assert (tmp_path / "f.png").stat().st_size > 0
+
+
+def test_evaluate_refuses_a_truth_at_another_frame_rate(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]
+                                                        ) -> None:
+    truth = load_sequence(SAMPLE)
+    est = _theta_file(tmp_path / "est", list(range(truth.n_frames)),
+                      times=truth.timestamps / 2)
+    for argv in (["evaluate", str(est), "--truth", str(SAMPLE)],
+                 ["plot", str(est), "--truth", str(SAMPLE), "--output", str(tmp_path / "f.png")]):
+        assert main(argv) == 1
+        err = one_line_error(capsys)
+        assert f"{est / 'theta.csv'}: line 3: frame 1 is at" in err
+        assert f"but {SAMPLE / 'frames.csv'} has frame 1 at {float(truth.timestamps[1])!r} s" in err
+        assert "another frame rate" in err
+    assert not (tmp_path / "f.png").exists()
+
+
+def test_match_frames_matches_by_number_and_time() -> None:
+    from apcc_graph.evaluation.frame_match import match_frames
+
+    truth = np.arange(10) / 30.0
+    match = match_frames([0, 2, 7], truth[[0, 2, 7]], truth, "e", "t")
+    assert match.frames.tolist() == [0, 2, 7] and not match.complete
+    with pytest.raises(ValueError, match=r"^e: line 3: frame 3 is at"):
+        match_frames([0, 3], truth[[0, 2]], truth, "e", "t")  # frame 3 labelled at frame 2's time
+    with pytest.raises(ValueError, match=r"^e: line 2: frame 12 is beyond the last frame of t"):
+        match_frames([12], [0.4], truth, "e", "t")

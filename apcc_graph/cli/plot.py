@@ -8,12 +8,12 @@ from pathlib import Path
 
 from apcc_graph.cli.common import (
     FORMATTER,
+    UserError,
     check_output_file,
     estimate_option,
     force_option,
     out_option,
     positive,
-    truth_for,
 )
 
 EXAMPLE = ("example:\n  apcc-graph plot /tmp/est --truth data/sequences/planar_three "
@@ -39,13 +39,19 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> str:
     """Draw the figure and return where it was written."""
-    from apcc_graph.io.estimates import load_theta_csv
+    from apcc_graph.cli.evaluate import matched_truth
+    from apcc_graph.io.estimates import load_theta_table
     from apcc_graph.plots import angles_figure, check_figure_path, save_figure
 
     check_figure_path(args.out)
     check_output_file(args.out, args.force)
-    timestamps, thetas, sigmas = load_theta_csv(Path(args.estimate) / "theta.csv")
-    truth = None if args.truth is None else truth_for(args.estimate, thetas, args.truth)
-    fig = angles_figure(timestamps, thetas, sigmas, truth, n_sigma=args.sigmas,
-                        label=Path(args.estimate).name or "estimate")
+    table = load_theta_table(Path(args.estimate) / "theta.csv")
+    truth = None
+    if args.truth is not None:
+        seq, match = matched_truth(args.estimate, table, args.truth)
+        if seq.thetas is None:
+            raise UserError(f"{args.truth}: frames.csv has no ground-truth theta columns")
+        truth = seq.thetas[match.frames]
+    fig = angles_figure(table.timestamps, table.thetas, table.sigmas, truth,
+                        n_sigma=args.sigmas, label=Path(args.estimate).name or "estimate")
     return f"wrote {save_figure(fig, args.out)}"

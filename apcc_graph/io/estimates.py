@@ -19,6 +19,7 @@ from typing import Protocol
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
 
 from apcc_graph.io.atomic import atomic_write_text
 from apcc_graph.io.csv_table import format_number, read_header, read_table
@@ -150,6 +151,8 @@ class ThetaTable:
         timestamps: ``(F,)``.
         thetas, sigmas: ``(F, S)``.
         psis, psi_sigmas: ``(F, S)`` for a spatial estimate, else ``None``.
+        frames: ``(F,)`` the sequence's frame numbers of the rows, strictly increasing (a live
+            run that skipped frames has gaps); ``None`` means ``0..F-1``.
     """
 
     timestamps: FloatArray
@@ -157,6 +160,11 @@ class ThetaTable:
     sigmas: FloatArray
     psis: FloatArray | None = None
     psi_sigmas: FloatArray | None = None
+    frames: NDArray[np.int64] | None = None
+
+    def frame_numbers(self) -> NDArray[np.int64]:
+        """The rows' frame numbers (``0..F-1`` when not read from a file)."""
+        return np.arange(len(self.timestamps)) if self.frames is None else self.frames
 
 
 def load_theta_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -171,7 +179,8 @@ def load_theta_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def load_theta_table(path: str | Path) -> ThetaTable:
-    """Read ``theta.csv``, with its bending-plane columns if it has them.
+    """Read ``theta.csv``, with its bending-plane columns if it has them. Frame numbers and
+    timestamps must increase strictly; frames may be skipped (a live run's file has gaps).
 
     Raises:
         ValueError: bad header or values (a ``psi`` that is not finite included); the message
@@ -187,10 +196,21 @@ def load_theta_table(path: str | Path) -> ThetaTable:
     if len(table) == 0:
         raise ValueError(f"{path}: no frames")
     frames = table.integers("frame")
-    wrong = np.flatnonzero(frames != np.arange(len(frames)))
-    if len(wrong):
-        row = int(wrong[0])
-        raise table.error(row, "frame", f"expected frame {row}, got {int(frames[row])}")
+    back = np.flatnonzero(np.diff(frames) <= 0)
+    if len(back):
+        row = int(back[0]) + 1
+        raise table.error(row, "frame", f"frame {int(frames[row])} after frame "
+                          f"{int(frames[row - 1])}; expected strictly increasing frame numbers")
+    times = table.column("timestamp")
+    if not np.all(np.isfinite(times)):
+        row = int(np.flatnonzero(~np.isfinite(times))[0])
+        raise table.error(row, "timestamp", f"expected a finite time (seconds), got "
+                          f"{float(times[row])!r}")
+    back = np.flatnonzero(np.diff(times) <= 0)
+    if len(back):
+        row = int(back[0]) + 1
+        raise table.error(row, "timestamp", f"{float(times[row])!r} s is not after the previous "
+                          f"row's {float(times[row - 1])!r} s; expected strictly increasing times")
     values = table.values
     thetas = values[:, 2:2 + n_seg]
     if not np.all(np.isfinite(thetas)):
@@ -198,10 +218,10 @@ def load_theta_table(path: str | Path) -> ThetaTable:
         raise table.error(int(row), f"theta_{col + 1}", "expected a finite angle (radians)")
     sigmas = values[:, 2 + n_seg:2 + 2 * n_seg].copy()
     if not spatial:
-        return ThetaTable(values[:, 1].copy(), thetas.copy(), sigmas)
+        return ThetaTable(values[:, 1].copy(), thetas.copy(), sigmas, frames=frames)
     psis = values[:, 2 + 2 * n_seg:2 + 3 * n_seg]
     if not np.all(np.isfinite(psis)):
         row, col = np.argwhere(~np.isfinite(psis))[0]
         raise table.error(int(row), f"psi_{col + 1}", "expected a finite angle (radians)")
     return ThetaTable(values[:, 1].copy(), thetas.copy(), sigmas, psis.copy(),
-                      values[:, 2 + 3 * n_seg:].copy())
+                      values[:, 2 + 3 * n_seg:].copy(), frames)
