@@ -1,4 +1,5 @@
-"""The notebooks execute top to bottom (nbclient), print the paper's figures and draw figures."""
+"""The notebooks are stored without outputs, execute top to bottom (nbclient), print the
+paper's figures and draw figures."""
 
 from __future__ import annotations
 
@@ -25,6 +26,16 @@ EXPECTED = {
 
 def test_every_notebook_is_listed() -> None:
     assert sorted(p.name for p in NOTEBOOKS.glob("*.ipynb")) == sorted(EXPECTED)
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_notebooks_are_stored_without_outputs(name: str) -> None:
+    """Outputs are what a run printed with the code of its day: stored, they go stale the next
+    time the code changes. The notebooks are stored clean, and the test below runs them."""
+    book = nbformat.read(NOTEBOOKS / name, as_version=4)
+    code = [cell for cell in book.cells if cell.cell_type == "code"]
+    assert code
+    assert [cell.execution_count for cell in code if cell.outputs or cell.execution_count] == []
 
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
