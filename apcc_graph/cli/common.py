@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -170,21 +170,36 @@ def estimate_option(truth_required: bool) -> argparse.ArgumentParser:
     return parent
 
 
-def check_output_folder(path: str | Path, force: bool) -> Path:
+def check_output_folder(path: str | Path, force: bool,
+                        inputs: Sequence[str | Path] = ()) -> Path:
     """The output folder of a command: new or empty, or anything with ``--force`` (the one rule
-    of every command that writes a folder)."""
+    of every command that writes a folder), and writable; checked before any computing. With
+    ``--force`` it is replaced whole when the new output is complete, so it must not be (or
+    hold) one of the command's ``inputs``."""
+    from apcc_graph.io.output_folder import check_writable
+
     out = Path(path)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
         raise UserError(f"{out}: exists and is not empty; choose another --out or add --force")
+    if out.exists() and force:
+        for given in inputs:
+            if out.resolve() == Path(given).resolve() or out.resolve() in Path(
+                    given).resolve().parents:
+                raise UserError(f"{out}: holds the input {given}; --force would replace it "
+                                "with the output: choose another --out")
+    check_writable(out, folder=True)
     return out
 
 
 def check_output_file(path: str | Path, force: bool) -> Path:
     """An output file of a command: new, or replaced with ``--force`` (the rule of
-    :func:`check_output_folder`, for a file)."""
+    :func:`check_output_folder`, for a file), and writable."""
+    from apcc_graph.io.output_folder import check_writable
+
     out = Path(path)
     if out.exists() and not force:
         raise UserError(f"{out}: exists; choose another path or add --force to replace it")
+    check_writable(out, folder=False)
     return out
 
 

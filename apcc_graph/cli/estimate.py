@@ -59,7 +59,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "TUM trajectory per segment tip (tips_seg_<i>.tum) into --out.",
         epilog=EXAMPLE, formatter_class=FORMATTER,
         parents=[out_option("output folder"),
-                 force_option("write into a non-empty --out (replaces its estimate files)")],
+                 force_option("replace a non-empty --out (whole, once the new estimate is "
+                              "written)")],
     )
     est.add_argument("sequence", nargs="+",
                      help="sequence folder; several, or a folder of sequence folders, are "
@@ -287,24 +288,26 @@ def _run_one(args: argparse.Namespace, folder: str) -> str:
     from apcc_graph.estimation.methods import estimate
     from apcc_graph.io import load_sequence
     from apcc_graph.io.estimates import save_estimate
+    from apcc_graph.io.output_folder import staged_folder
 
     sequence = load_sequence(folder)
     theta0 = _theta0(args.theta0_deg, sequence.robot)
     options = _options(args)
     if args.psi0_deg is not None:
         options["psi0"] = _psi0(args.psi0_deg, sequence.robot.n_segments)
-    check_output_folder(args.out, args.force)  # after the inputs: their errors come first
+    # after the inputs (their errors come first), before any computing
+    check_output_folder(args.out, args.force, inputs=[folder])
     try:
         result = estimate(sequence, method=args.method, theta0=theta0, **options)
     except ValueError as error:
         raise UserError(str(error)) from None
-    written = save_estimate(result, args.out)
-    if args.calibrate and args.method == "batch":
-        from apcc_graph.io.robot_file import save_robot
+    with staged_folder(args.out, replace=args.force) as staging:  # whole, or not at all
+        written = save_estimate(result, staging)
+        if args.calibrate and args.method == "batch":
+            from apcc_graph.io.robot_file import save_robot
 
-        robot_path = Path(args.out) / "robot_calibrated.toml"
-        save_robot(result.robot, robot_path)
-        written = [*written, robot_path]
+            save_robot(result.robot, staging / "robot_calibrated.toml")
+            written = [*written, staging / "robot_calibrated.toml"]
     lines = [f"{args.method}: {result.n_frames} frames, {sequence.n_segments} segments -> "
              f"{args.out} ({', '.join(p.name for p in written)})"]
     if result.start is not None:

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -23,6 +24,9 @@ from apcc_graph.cli import (
     track,
 )
 from apcc_graph.cli.common import Parser, UserError
+from apcc_graph.cli.console import quiet_option
+from apcc_graph.interrupts import catching_interrupts, check_interrupted
+from apcc_graph.io.console import print_line
 
 SUBCOMMANDS = (calibrate, simulate, track, estimate, live, evaluate, montecarlo, plot, robot,
                bench)
@@ -37,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"apcc-graph {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    quiet_option(parser)
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in SUBCOMMANDS:
         module.add_parser(commands)
@@ -45,26 +50,50 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str,
                       lineno: int, file: object = None, line: str | None = None) -> None:
-    """Warnings of the library as one line on stderr, like errors."""
-    print(f"apcc-graph: warning: {message}", file=sys.stderr)
+    """Warnings of the library as one line on stderr, like errors (above a progress bar or
+    the live status line, never glued onto it)."""
+    print_line(" ".join(f"apcc-graph: warning: {message}".split()), sys.stderr)
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line ``apcc-graph`` prints for an exception (without the ``apcc-graph: error:``
+    prefix): a user's mistake or an OS error as it is, a gtsam failure decoded (which variable,
+    what to try), anything else as an internal error with a pointer to ``--debug``."""
+    from apcc_graph.estimation.failures import gtsam_failure, is_gtsam_error
+
+    if is_gtsam_error(exc):
+        message = gtsam_failure(exc)
+    elif isinstance(exc, UserError | ValueError | OSError):
+        message = (str(exc) if not isinstance(exc, OSError) or not exc.filename
+                   else f"{exc.filename}: {exc.strerror}")
+    else:
+        message = (f"internal error: {type(exc).__name__}: {exc} (run with --debug for the "
+                   "traceback)")
+    return " ".join(message.split())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``apcc-graph``; returns the exit code."""
+    """Entry point of ``apcc-graph``; returns the exit code: 0 done, 1 an error (one line on
+    stderr), 130 interrupted (Ctrl-C; nothing half-written is left)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), catching_interrupts():
             warnings.showwarning = _one_line_warning
-            print(args.run(args))
-    except (UserError, ValueError, OSError) as exc:
+            result = args.run(args)
+            check_interrupted()  # a Ctrl-C that a C callback swallowed
+            print(result)
+    except KeyboardInterrupt:
         if args.debug:
             raise
-        message = (
-            str(exc)
-            if not isinstance(exc, OSError) or not exc.filename
-            else (f"{exc.filename}: {exc.strerror}")
-        )
-        print(f"apcc-graph: error: {message}", file=sys.stderr)
+        print("apcc-graph: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # the reader of stdout went away (e.g. `| head`)
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - no second error at exit
+        return 1
+    except Exception as exc:  # noqa: BLE001 - every failure is one line without --debug
+        if args.debug:
+            raise
+        print(f"apcc-graph: error: {error_line(exc)}", file=sys.stderr)
         return 1
     return 0

@@ -111,9 +111,10 @@ def _add_image_options(simp: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> str:
     """Simulate, write the sequence folder and return the summary with the bound."""
     from apcc_graph.io import load_robot, save_sequence
+    from apcc_graph.io.output_folder import staged_folder
     from apcc_graph.simulation.simulator import simulate
 
-    out = check_output_folder(args.out, args.force)
+    out = check_output_folder(args.out, args.force, inputs=[args.robot])
     scene = args.scene or ("room" if args.images else "points")
     if args.images and scene != "room":
         raise UserError("--images renders the textured room: use --scene room (or leave "
@@ -140,9 +141,10 @@ def run(args: argparse.Namespace) -> str:
         track_lifetime=args.lifetime, blackout_fraction=args.blackout, decimals=args.decimals,
         progress=True,
     )
-    if args.images:
-        return _simulate_images(args, sim, out)
-    save_sequence(sim.sequence, out)
+    with staged_folder(out, replace=args.force) as staging:  # whole, or not at all
+        if args.images:
+            return _simulate_images(args, sim, out, staging)
+        save_sequence(sim.sequence, staging)
     seq = sim.sequence
     lines = [f"wrote {out}: {seq.n_frames} frames at {args.fps:g} fps, "
              f"{len(seq.cameras)} camera(s), seed {args.seed}"]
@@ -180,8 +182,9 @@ def _bound_line(sim: object, noise_px: float) -> str:
             + ", ".join(f"{v:.3f}" for v in np.degrees(bound.rms())) + " deg")
 
 
-def _simulate_images(args: argparse.Namespace, sim: object, out: Path) -> str:
-    """``simulate --images``: the sequence without tracks, and rendered images of the room."""
+def _simulate_images(args: argparse.Namespace, sim: object, out: Path, staging: Path) -> str:
+    """``simulate --images``: the sequence without tracks, and rendered images of the room,
+    written into ``staging`` (which becomes ``out``)."""
     from apcc_graph.io import save_sequence
     from apcc_graph.model.sequence import Sequence
     from apcc_graph.simulation.render import SensorModel, textured_room, write_sequence_images
@@ -201,9 +204,10 @@ def _simulate_images(args: argparse.Namespace, sim: object, out: Path) -> str:
     # The images are the observations: tracks come from `apcc-graph track`.
     bare = Sequence(seq.robot, seq.timestamps, {}, world_T_base=seq.world_T_base,
                     thetas=seq.thetas, psis=seq.psis)
-    save_sequence(bare, out)
-    images = write_sequence_images(out, room, cameras, sim.world_T_cam, sensor, seed=args.seed,
-                                   supersample=args.supersample or 2, progress=True)
+    save_sequence(bare, staging)
+    write_sequence_images(staging, room, cameras, sim.world_T_cam, sensor, seed=args.seed,
+                          supersample=args.supersample or 2, progress=True)
+    images = out / "images"
     return "\n".join([
         f"wrote {out}: {seq.n_frames} frames at {args.fps:g} fps, {len(cameras)} camera(s), "
         f"seed {args.seed}, rendered images in {images} ({args.texture or 'skimage'} "

@@ -23,6 +23,7 @@ def run_replay(args: argparse.Namespace, robot: Robot, out: Path, scene: str) ->
     """Replay, write the sequence folder (with ``truth_tips.csv``) and return the summary."""
     from apcc_graph.io import save_sequence
     from apcc_graph.io.backbone_poses import load_backbone_poses
+    from apcc_graph.io.output_folder import staged_folder
     from apcc_graph.io.robot_file import load_markers
     from apcc_graph.simulation.replay import measured_ends
 
@@ -37,7 +38,8 @@ def run_replay(args: argparse.Namespace, robot: Robot, out: Path, scene: str) ->
     markers = load_markers(args.robot)
     ends = measured_ends(load_backbone_poses(poses_path), robot, markers)
     rep = _replay(args, robot, ends, poses_path, scene)
-    save_sequence(rep.simulation.sequence, out)
+    with staged_folder(out, replace=args.force) as staging:  # whole, or not at all
+        save_sequence(rep.simulation.sequence, staging)
     lines = _summary(args, robot, rep, out, poses_path)
     if not markers:
         lines.insert(1, "note: the robot file has no [[markers]] offsets (calibrate it from "

@@ -1,0 +1,62 @@
+"""gtsam's failures in the user's words: the variable a gtsam error names by its key (a
+number such as ``8646911284551352362``) decoded into what it stands for (frame 42's bends, a
+segment tip, a track's point, a calibrated model or mount), and what to try."""
+
+from __future__ import annotations
+
+import re
+
+import gtsam
+
+GTSAM_SIGNS = ("indeterminant linear system", "indeterminate linear system", "variableindex",
+               "cheirality", "key does not exist", "valueskeydoesnotexist",
+               "valuesincorrecttype", "not positive definite", "gtsam")
+"""Phrases that mark an exception's message as gtsam's (gtsam raises plain ``RuntimeError``
+and ``ValueError``)."""
+
+_KEY = re.compile(r"\b\d{15,20}\b")
+_SEGMENTS_PER_FRAME = 64  # as apcc_graph.estimation.pose_batch.MAX_SEGMENTS
+
+
+def key_name(key: int) -> str:
+    """What the graph variable ``key`` is, e.g. ``"frame 42's bends"``."""
+    symbol = gtsam.Symbol(key)
+    letter, index = chr(symbol.chr()), symbol.index()
+    if letter == "x":
+        return f"frame {index}'s bends"
+    if letter == "t":
+        frame, segment = divmod(index, _SEGMENTS_PER_FRAME)
+        return f"frame {frame}'s segment {segment + 1} tip"
+    if letter == "l":
+        camera, track = divmod(index, 2**32)
+        return f"camera {camera + 1}'s track {track} point"
+    if letter == "c":
+        return f"segment {index + 1}'s k and delta_max"
+    if letter == "m":
+        return f"camera {index + 1}'s mount"
+    return f"variable {letter}{index}"
+
+
+def is_gtsam_error(error: BaseException) -> bool:
+    """Whether ``error`` comes from gtsam (judged by its message)."""
+    text = str(error).lower()
+    return isinstance(error, RuntimeError | ValueError) and any(s in text for s in GTSAM_SIGNS)
+
+
+def gtsam_failure(error: BaseException) -> str:
+    """A gtsam error as one line: what failed, near which variable (decoded), what to try."""
+    text = " ".join(str(error).split())
+    keys = [int(k) for k in _KEY.findall(text)]
+    near = f" near {key_name(keys[0])}" if keys else ""
+    lower = text.lower()
+    if "indeterminant linear system" in lower or "indeterminate linear system" in lower:
+        what = "an indeterminate linear system (the images and priors do not fix the variable)"
+        hint = ("check the robot file's cameras (intrinsics, distortion, mounts) and the tracks"
+                "; with --method smoother try --factorization QR or a longer --lag")
+    elif "variableindex" in lower:
+        what = "its variable index went inconsistent"
+        hint = "run it again; if it repeats, try another --method"
+    else:
+        what = text[:200]
+        hint = "check the robot file and the tracks, or try another --method"
+    return f"gtsam failed{near}: {what}; {hint}"

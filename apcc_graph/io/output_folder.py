@@ -1,0 +1,135 @@
+"""Output folders written whole: everything goes into a hidden staging folder beside the
+destination (``.NAME.partial-XXXX`` in the same parent), which is renamed into place only when
+complete. A failure, a full disk or Ctrl-C removes the staging folder and leaves the
+destination as it was; with ``replace`` an existing destination is swapped out only at the end
+(renamed aside, the new one renamed in, the old one deleted), so the old and the new never mix.
+
+Before any computing, :func:`check_writable` tells whether a destination can be written at all.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from apcc_graph.interrupts import check_interrupted
+from apcc_graph.io.atomic import folder_mode, write_error
+
+STAGING = ".partial-"
+"""What the name of a staging folder holds (``.NAME.partial-XXXX``)."""
+
+
+def staging_folders(destination: str | Path) -> list[Path]:
+    """The staging folders of ``destination`` left in its parent (by a process that was
+    killed before it could remove them)."""
+    destination = Path(destination)
+    if not destination.parent.is_dir():
+        return []
+    return sorted(destination.parent.glob(f".{destination.name}{STAGING}*"))
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its closest ancestor that exists."""
+    path = path.absolute()
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def check_writable(path: str | Path, folder: bool = True) -> Path:
+    """Whether ``path`` (a folder, or a file when not ``folder``) can be written: not an
+    existing file where a folder is expected (nor the reverse), and its parent exists or can be
+    created, is a folder and takes a new file (tried with a probe file: permission bits alone do
+    not tell, e.g. for root or on a read-only mount).
+
+    Raises:
+        OSError: why not, naming ``path`` or the ancestor that refuses.
+    """
+    path = Path(path)
+    if folder and path.exists() and not path.is_dir():
+        raise OSError(f"{path}: is a file, not a folder")
+    if not folder and path.is_dir():
+        raise OSError(f"{path}: is a folder, not a file")
+    parent = _nearest_existing(path.parent)
+    if not parent.is_dir():
+        raise OSError(f"{path}: cannot be created: {parent} is a file, not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".apcc-graph-probe-", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise OSError(f"{path}: cannot be written: no new file can be made in {parent} "
+                      f"({reason[:1].lower() + reason[1:]})") from None
+    return path
+
+
+def _remove(path: Path) -> None:
+    """Delete a folder tree, ignoring what is already gone."""
+    shutil.rmtree(path, ignore_errors=True)
+
+
+@contextmanager
+def staged_folder(destination: str | Path, replace: bool = False) -> Iterator[Path]:
+    """A new, empty staging folder for ``destination``; when the block ends without an error
+    it becomes ``destination``. On any error or Ctrl-C the staging folder is deleted and
+    ``destination`` is untouched.
+
+    Args:
+        destination: the output folder.
+        replace: an existing ``destination`` (a folder) is replaced whole; without it, only an
+            empty one is.
+
+    Raises:
+        OSError: the staging folder could not be made or moved into place (the message names
+            ``destination``), or ``destination`` holds something and ``replace`` is not given.
+    """
+    destination = Path(destination)
+    try:
+        destination.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{destination.name}{STAGING}",
+                                        dir=destination.parent))
+        os.chmod(staging, folder_mode())
+    except OSError as exc:
+        raise write_error(exc, destination) from exc
+    try:
+        yield staging
+        check_interrupted()
+        _swap_in(staging, destination, replace)
+    except OSError as exc:
+        _remove(staging)
+        if exc.filename is not None and str(exc.filename).startswith(str(staging)):
+            # name the file as it would be in the destination, not in the staging folder
+            inside = Path(exc.filename).relative_to(staging)
+            raise OSError(exc.errno, exc.strerror, str(destination / inside)) from exc
+        raise
+    except BaseException:
+        _remove(staging)
+        raise
+
+
+def _swap_in(staging: Path, destination: Path, replace: bool) -> None:
+    """Move the complete ``staging`` folder to ``destination``, the old one out of the way
+    only now."""
+    if destination.is_dir() and not any(destination.iterdir()):
+        destination.rmdir()
+    if not (destination.exists() or destination.is_symlink()):
+        os.rename(staging, destination)
+        return
+    if not replace:
+        raise OSError(f"{destination}: appeared while writing; the new output was not written "
+                      "(add --force to replace it)")
+    old = Path(tempfile.mkdtemp(prefix=f".{destination.name}.old-", dir=destination.parent))
+    aside = old / destination.name
+    os.rename(destination, aside)
+    try:
+        os.rename(staging, destination)
+    except BaseException:
+        os.rename(aside, destination)  # put the old one back
+        old.rmdir()
+        raise
+    _remove(old)
