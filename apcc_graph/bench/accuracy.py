@@ -18,11 +18,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from apcc_graph.bench.scenes import make_case
 from apcc_graph.evaluation.two_view_bound import crlb_theta
 from apcc_graph.frontend import one_point_ransac
+from apcc_graph.io.console import progress_bar
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.segment import Segment
 
@@ -64,7 +64,7 @@ def run_accuracy_benchmark(
     rng = np.random.default_rng(seed)
     rows = []
     total = 2 * len(noise_levels) * trials
-    bar = tqdm(total=total, desc="accuracy", disable=not progress)
+    bar = progress_bar(total=total, desc="accuracy", progress=progress)
     for base, alpha in (("fixed", None), ("moving", math.radians(5.0))):
         for noise in noise_levels:
             errors, ratios, bounds, failures = [], [], [], 0

@@ -19,12 +19,12 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from tqdm import tqdm
 
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.factors.engine import ENGINES, use_engine
+from apcc_graph.io.console import progress_bar
 from apcc_graph.model.sequence import Sequence
 
 
@@ -46,7 +46,7 @@ def _smoother_times(sequence: Sequence, settings: SmootherOptions, progress: boo
     smoother = FixedLagSmoother(sequence.robot, lag=1.0, theta0=sequence.thetas[0],
                                 settings=settings)
     times = np.empty(sequence.n_frames)
-    for f in tqdm(range(sequence.n_frames), desc=label, disable=not progress, leave=False):
+    for f in progress_bar(range(sequence.n_frames), desc=label, progress=progress, leave=False):
         start = time.perf_counter()
         smoother.update(sequence.frame(f))
         times[f] = time.perf_counter() - start

@@ -53,11 +53,11 @@ def run_images_benchmark(frames: int = 150, seeds: tuple[int, ...] = (1, 2, 3, 4
                          texture_source: str = "skimage", progress: bool = False,
                          ) -> list[ImagesRun]:
     """Run the end-to-end comparison for each seed (see the module docstring)."""
-    from tqdm import tqdm
+    from apcc_graph.io.console import progress_bar
 
     robot = load_robot(ROBOT_FILE) if robot is None else robot
     runs = []
-    for seed in tqdm(seeds, desc="seeds", disable=not progress):
+    for seed in progress_bar(seeds, desc="seeds", progress=progress):
         sim = simulate(robot, frames, noise_px=1.0, seed=seed, scene="room")
         room = textured_room(sim.scene_centre, sim.room_half_size, texture_source, seed=seed)
         sensor = SensorModel(noise_grey=noise_grey)

@@ -26,7 +26,6 @@ from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
-from tqdm import tqdm
 
 from apcc_graph.bench import table_cells as _cells
 from apcc_graph.bench.self_calibration import CALIBRATION_SIGMAS
@@ -34,6 +33,7 @@ from apcc_graph.bench.smoother import NOISE_PX, ROBOT_FILE, THETA0_SIGMA, room_s
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS, mount_change
 from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms
 from apcc_graph.model.robot import Robot
@@ -86,7 +86,7 @@ def run_mount_benchmark(frames: int = 600, seeds: SequenceOf[int] = (1, 2, 3),
     """Run the benchmark (see the module docstring)."""
     robot = load_robot(ROBOT_FILE)
     runs = []
-    for seed in tqdm(seeds, desc="mounts", disable=not progress):
+    for seed in progress_bar(seeds, desc="mounts", progress=progress):
         sim = room_simulation(robot, frames, outliers, seed)
         seq = sim.sequence
         assert seq.thetas is not None

@@ -35,12 +35,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from threadpoolctl import threadpool_limits
-from tqdm import tqdm
 
 from apcc_graph.bench.smoother import FPS, N_POINTS, NOISE_PX, ROBOT_FILE, THETA0_SIGMA
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.evaluation.recovery import recovery_frames, sigma_honesty
 from apcc_graph.evaluation.sequence_bound import lag_bound, sequence_bound
+from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import FloatArray, rms
 from apcc_graph.model.robot import Robot
@@ -232,7 +232,7 @@ def run_reliability(frames: int = 450, seed: int = 1, progress: bool = False
     cases = fault_cases(frames, seed)
     first, clean_errors = run_case(cases[0])
     rows = [first]
-    for case in tqdm(cases[1:], desc="faults", disable=not progress):
+    for case in progress_bar(cases[1:], desc="faults", progress=progress):
         rows.append(run_case(case, clean_errors, cases[0].simulation)[0])
     return rows
 

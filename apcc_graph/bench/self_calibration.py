@@ -25,12 +25,12 @@ from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from apcc_graph.bench import table_cells as _cells
 from apcc_graph.bench.smoother import NOISE_PX, ROBOT_FILE, THETA0_SIGMA, room_simulation
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms
 from apcc_graph.model.robot import Robot
@@ -82,7 +82,7 @@ def run_self_calibration_benchmark(frames: int = 600, seeds: SequenceOf[int] = (
     robot = load_robot(ROBOT_FILE)
     wrong = wrong_models(robot, dk, dd)
     runs = []
-    for seed in tqdm(seeds, desc="selfcal", disable=not progress):
+    for seed in progress_bar(seeds, desc="selfcal", progress=progress):
         sim = room_simulation(robot, frames, outliers, seed)
         seq = sim.sequence
         assert seq.thetas is not None

@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.bench import table_cells as _cells
@@ -53,6 +52,7 @@ from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.evaluation.sequence_bound import LagBound, SequenceBound, lag_bound, sequence_bound
+from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms, window_rms
 from apcc_graph.model.robot import Robot
@@ -139,7 +139,7 @@ def _stream(smoother: FixedLagSmoother, sequence: Sequence,
             progress: bool, label: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Final angles and sigmas ``(F, S)`` and update times ``(F,)`` of a smoother run."""
     times = np.empty(sequence.n_frames)
-    for f in tqdm(range(sequence.n_frames), desc=label, disable=not progress, leave=False):
+    for f in progress_bar(range(sequence.n_frames), desc=label, progress=progress, leave=False):
         start = time.perf_counter()
         smoother.update(sequence.frame(f))
         times[f] = time.perf_counter() - start
@@ -231,7 +231,7 @@ def _memory(robot: Robot, frames: int, seed: int, progress: bool) -> tuple[float
     assert seq.thetas is not None
     sm = FixedLagSmoother(robot, lag=LAG, theta0=seq.thetas[0], settings=QUICK)
     rss_small = float("nan")
-    for f in tqdm(range(frames), desc="memory", disable=not progress, leave=False):
+    for f in progress_bar(range(frames), desc="memory", progress=progress, leave=False):
         sm.update(seq.frame(f))
         sm.pop_final()
         if f + 1 == min(1000, frames):

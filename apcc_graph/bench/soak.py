@@ -36,6 +36,7 @@ from apcc_graph.bench.smoother import FPS, LAG, N_POINTS, NOISE_PX, ROBOT_FILE, 
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.evaluation.sequence_bound import lag_bound
+from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.simulation.simulator import simulate
 from apcc_graph.simulation.stream import SimulatedStream
@@ -108,7 +109,7 @@ def run_soak(frames: int = 100_000, seed: int = 1, bound: bool = True,
     sq, n, truth, rss_reference, c = np.zeros(robot.n_segments), 0, {}, float("nan"), 0
     limit = threadpool_limits(limits=1, user_api="blas")
     try:
-        for f in tqdm(range(frames), desc="soak", disable=not progress, mininterval=1.0):
+        for f in progress_bar(range(frames), desc="soak", progress=progress, mininterval=1.0):
             observations, truth[f] = stream.next_frame()
             start, start_cpu = time.perf_counter(), time.thread_time()
             smoother.update(observations)

@@ -28,7 +28,6 @@ from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.estimation.batch import batch_estimate
@@ -37,6 +36,7 @@ from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.evaluation.sequence_bound import sequence_bound
+from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms, window_rms
 from apcc_graph.simulation.simulator import simulate
@@ -101,7 +101,7 @@ def run_spatial_benchmark(frames: int = 600, seeds: SequenceOf[int] = (1, 2, 3),
     """Run the benchmark (see the module docstring)."""
     robot = load_robot(ROBOT_FILE)
     runs = []
-    for seed in tqdm(seeds, desc="spatial", disable=not progress):
+    for seed in progress_bar(seeds, desc="spatial", progress=progress):
         sim = simulate(robot, frames, noise_px=NOISE_PX, outlier_fraction=outliers, seed=seed,
                        fps=FPS, scene="room", n_points=N_POINTS, spatial=True)
         seq = sim.sequence

@@ -26,13 +26,13 @@ from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.bench.smoother import LAG, THETA0_SIGMA, room_simulation
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms
 from apcc_graph.model.sequence import Sequence
@@ -85,8 +85,8 @@ def _run(sequence: Sequence, live_rows: int, progress: bool
         settings=SmootherOptions(min_live_rows=live_rows, uncertainty=False))
     newest = np.empty_like(sequence.thetas)
     start = time.perf_counter()
-    for f in tqdm(range(sequence.n_frames), desc=f"min_live_rows {live_rows}",
-                  disable=not progress, leave=False):
+    for f in progress_bar(range(sequence.n_frames), desc=f"min_live_rows {live_rows}",
+                          progress=progress, leave=False):
         newest[f] = smoother.update(sequence.frame(f)).thetas
     final = np.array([fr.thetas for fr in smoother.finish()])
     return newest, final, time.perf_counter() - start

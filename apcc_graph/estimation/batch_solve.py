@@ -17,7 +17,6 @@ import gtsam
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
-from tqdm import tqdm
 
 from apcc_graph.estimation.graph import (
     CameraTerms,
@@ -33,6 +32,7 @@ from apcc_graph.estimation.graph import (
 from apcc_graph.estimation.model_calibration import ModelCalibration
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.robust import gnc_start
+from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
@@ -219,7 +219,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
                    mount_sigmas, start_sigmas)
     thetas = np.array(initial, dtype=float)
     # One bar over every long stage: triangulation, the outlier rounds, the marginals.
-    bar = tqdm(total=max_final_rounds + 2, desc="batch", disable=not progress, leave=False)
+    bar = progress_bar(total=max_final_rounds + 2, desc="batch", progress=progress, leave=False)
     bar.set_postfix_str("triangulating the tracks")
     for t in terms:
         t.measure(thetas, robust=True)

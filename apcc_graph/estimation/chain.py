@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from tqdm import tqdm
 
 from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
 from apcc_graph.estimation.front_end import FramePairs, chained_guess
 from apcc_graph.estimation.result import Estimate
+from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
@@ -43,7 +43,7 @@ def chain_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
     inliers = np.zeros((n_frames, n_seg), dtype=np.int64)
     rng = np.random.default_rng(seed)
     cameras = [i for i in range(n_seg) if robot.cameras[i] is not None]
-    for f in tqdm(range(1, n_frames), desc="chain", disable=not progress):
+    for f in progress_bar(range(1, n_frames), desc="chain", progress=progress):
         pairs = []
         for i in cameras:
             corr = sequence.correspondences(i, f - 1, f)

@@ -33,9 +33,9 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from threadpoolctl import threadpool_limits
-from tqdm import tqdm
 
 from apcc_graph.io.atomic import atomic_write_text
+from apcc_graph.io.console import progress_bar
 from apcc_graph.io.csv_table import format_number
 
 DONE = "done.txt"
@@ -201,7 +201,7 @@ def map_tasks(function: Callable[..., Result], jobs: Sequence[tuple[Any, ...]],
     importable by the workers (a module-level function) and should not raise: a job's failure
     is best returned as its result."""
     if scheduler is None and (workers == 1 or not _has_dask(workers)):
-        return [function(*job) for job in tqdm(jobs, desc=label, disable=not progress)]
+        return [function(*job) for job in progress_bar(jobs, desc=label, progress=progress)]
     return _on_dask(function, list(jobs), workers, scheduler, progress, label)
 
 
@@ -233,7 +233,7 @@ def _on_dask(function: Callable[..., Result], jobs: list[tuple[Any, ...]], worke
     with Client(scheduler or cluster) as client:
         futures = {client.submit(function, *job, pure=False): i for i, job in enumerate(jobs)}
         results: list[Result | None] = [None] * len(jobs)
-        bar = tqdm(total=len(jobs), desc=label, disable=not progress)
+        bar = progress_bar(total=len(jobs), desc=label, progress=progress)
         for future in as_completed(futures):
             results[futures[future]] = future.result()
             bar.update()

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
-from tqdm import tqdm
 
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.pose_smoother import PoseSmoother
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.io.console import progress_bar
 from apcc_graph.model.sequence import Sequence
 
 
@@ -25,7 +25,7 @@ def stream_estimate(smoother: FixedLagSmoother | PoseSmoother, sequence: Sequenc
     Ground-truth columns are never read. The estimate's ``method`` is ``"smoother"`` and its
     ``inliers`` are 0 (the smoother weighs each observation instead of counting inliers).
     """
-    for f in tqdm(range(sequence.n_frames), desc="smoother", disable=not progress):
+    for f in progress_bar(range(sequence.n_frames), desc="smoother", progress=progress):
         smoother.update(sequence.frame(f))
     frames = smoother.finish()
     n_seg = sequence.n_segments

@@ -117,7 +117,7 @@ def track_recording(streams: Sequence[CameraStream], robot: Robot,
         ValueError: a stream per camera missing, no common frame, or an image of the wrong
             size (the message names the stream and the image).
     """
-    from tqdm import tqdm
+    from apcc_graph.io.console import progress_bar
 
     cams = robot.camera_segments
     if len(streams) != len(cams):
@@ -125,7 +125,7 @@ def track_recording(streams: Sequence[CameraStream], robot: Robot,
                          f"(on segments {', '.join(str(c + 1) for c in cams)})")
     matched = match_frames([s.timestamps for s in streams], tolerance)
     tracks = {}
-    bar = tqdm(total=matched.indices.size, desc="track", unit="image", disable=not progress)
+    bar = progress_bar(total=matched.indices.size, desc="track", unit="image", progress=progress)
     for cam, stream, wanted in zip(cams, streams, matched.indices, strict=True):
         camera = robot.cameras[cam]
         assert camera is not None

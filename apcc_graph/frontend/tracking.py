@@ -24,9 +24,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from tqdm import tqdm
 
 from apcc_graph.io.atomic import atomic_write_text
+from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.sequence import Tracks
 
@@ -229,7 +229,7 @@ def track_sequence(folder: str | Path, force: bool = False,
                                  "observations; use --force to replace them")
     texts = {}
     total = sum(sequence.n_frames for _ in sequence.images)
-    with tqdm(total=total, desc="track", unit="image", disable=not progress) as bar:
+    with progress_bar(total=total, desc="track", unit="image", progress=progress) as bar:
         for cam, files in sequence.images.items():
             camera = sequence.robot.cameras[cam]
             assert camera is not None

@@ -33,8 +33,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from tqdm import tqdm
 
+from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
 
@@ -357,7 +357,7 @@ def write_sequence_images(folder: str | Path, room: TexturedRoom,
     staging = Path(tempfile.mkdtemp(prefix=".images-", dir=folder))
     total = sum(len(p) for p in world_T_cam.values())
     try:
-        with tqdm(total=total, desc="render", unit="image", disable=not progress) as bar:
+        with progress_bar(total=total, desc="render", unit="image", progress=progress) as bar:
             for cam, poses in world_T_cam.items():
                 cam_dir = staging / f"cam_{cam + 1}"
                 cam_dir.mkdir()

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from tqdm import tqdm
 
+from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.robot import Robot
@@ -157,7 +157,7 @@ def projections(points: FloatArray, camera: TipCamera, world_T_cam: FloatArray,
     n_frames = len(world_T_cam)
     visible = np.zeros((n_frames, len(points)), dtype=bool)
     pixels = np.zeros((n_frames, len(points), 2))
-    for f in tqdm(range(n_frames), desc=label, disable=not progress, leave=False):
+    for f in progress_bar(range(n_frames), desc=label, progress=progress, leave=False):
         R, p = world_T_cam[f, :3, :3], world_T_cam[f, :3, 3]
         in_cam = (points - p) @ R
         front = in_cam[:, 2] > NEAR
