@@ -286,3 +286,88 @@ def test_match_frames_matches_by_number_and_time() -> None:
         match_frames([0, 3], truth[[0, 2]], truth, "e", "t")  # frame 3 labelled at frame 2's time
     with pytest.raises(ValueError, match=r"^e: line 2: frame 12 is beyond the last frame of t"):
         match_frames([12], [0.4], truth, "e", "t")
+
+
+# ------------------------------------------------------------------- cameras that see nothing
+def _replace_nth(text: str, old: str, new: str, n: int) -> str:
+    parts = text.split(old)
+    assert len(parts) > n + 1
+    return old.join(parts[:n + 1]) + new + old.join(parts[n + 1:])
+
+
+@pytest.mark.parametrize("distortion", ["[1e6, -1e6, 0, 0]", "[-0.3, 0.0, 0.0, 0.0]",
+                                        "[0.5, -3.0, 0.0, 0.0]"])
+def test_a_distortion_that_cannot_be_inverted_is_refused_at_load(
+        sample_copy: Path, tmp_path: Path, distortion: str,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    path = sample_copy / "robot.toml"
+    path.write_text(_replace_nth(path.read_text(), "distortion = []",
+                                 f"distortion = {distortion}", 1))
+    expected = f"{path}: segments[1].camera.distortion: TipCamera.distortion = "
+    with pytest.raises(ValueError, match=r"not invertible over the 640x480 image") as info:
+        load_robot(path)
+    assert str(info.value).startswith(expected)
+    assert main(["estimate", str(sample_copy), "--method", "chain",
+                 "--out", str(tmp_path / "est")]) == 1
+    err = one_line_error(capsys)
+    assert expected in err and "several rays" in err
+    assert not (tmp_path / "est").exists()
+
+
+@pytest.mark.parametrize("distortion", [(-0.3, 0.1, 0.0, 0.0), (-0.28, 0.07, 0.001, -0.001,
+                                                                 -0.008),
+                                        (0.1, 0.01, 0.001, 0.001), (-0.1, 0.0, 0.0, 0.0)])
+def test_ordinary_distortions_are_accepted_and_invert(distortion: tuple[float, ...]) -> None:
+    from apcc_graph.model.camera import TipCamera
+
+    cam = TipCamera(500.0, 500.0, 320.0, 240.0, 640, 480, distortion)
+    grid = np.stack(np.meshgrid(np.linspace(0, 639, 5), np.linspace(0, 479, 5)), -1).reshape(-1, 2)
+    back = cam.project(np.column_stack([cam.normalized(grid), np.ones(len(grid))]))
+    np.testing.assert_allclose(back, grid, atol=1e-6)
+
+
+def _sparse_sequence(keep_every: int | None, scramble: bool):  # -> Sequence
+    """The sample, camera 2 keeping one track row in ``keep_every`` (or all), its pixels
+    scrambled between frames when ``scramble`` (no consistent motion to find)."""
+    from apcc_graph.model.sequence import Sequence, Tracks
+
+    seq = load_sequence(SAMPLE).head(60)
+    trk = seq.tracks[1]
+    rows = np.arange(len(trk)) if keep_every is None else np.arange(0, len(trk), keep_every)
+    uv = trk.uv[rows]
+    if scramble:
+        uv = np.random.default_rng(0).permutation(uv)
+    tracks = dict(seq.tracks)
+    tracks[1] = Tracks(trk.frames[rows], trk.track_ids[rows], uv)
+    return Sequence(seq.robot, seq.timestamps, tracks, world_T_base=seq.world_T_base)
+
+
+def test_a_camera_with_almost_no_tracks_is_warned_about() -> None:
+    import apcc_graph
+    from apcc_graph.estimation.methods import ObservationWarning, check_observations
+
+    seq = _sparse_sequence(keep_every=200, scramble=False)
+    with pytest.warns(ObservationWarning, match=r"camera cam_2 \(segment 2\) has \d+ "
+                      r"observations in 60 frames .*fewer than 5 per frame"):
+        check_observations(seq)
+    with pytest.warns(ObservationWarning, match="cam_2"):
+        apcc_graph.estimate(seq, method="chain", theta0=load_sequence(SAMPLE).thetas[0])
+
+
+def test_the_chain_warns_when_a_camera_keeps_almost_no_inliers() -> None:
+    import warnings
+
+    import apcc_graph
+    from apcc_graph.estimation.methods import ObservationWarning
+
+    theta0 = load_sequence(SAMPLE).thetas[0]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        apcc_graph.estimate(_sparse_sequence(None, scramble=False), method="chain",
+                            theta0=theta0)
+    assert not [w for w in caught if issubclass(w.category, ObservationWarning)]
+    with pytest.warns(ObservationWarning, match=r"chain: camera cam_2 \(segment 2\) kept .* "
+                      r"correspondences per frame pair, 3% of what its tracks offer "
+                      r".*may drift far"):
+        apcc_graph.estimate(_sparse_sequence(None, scramble=True), method="chain",
+                            theta0=theta0)

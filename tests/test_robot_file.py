@@ -188,14 +188,29 @@ def _cameras(draw: st.DrawFn) -> TipCamera | None:
     angles = draw(st.tuples(*[st.floats(-math.pi, math.pi)] * 3))
     translation = draw(st.tuples(*[st.floats(-1.0, 1.0)] * 3))
     n_dist = draw(st.sampled_from([0, 4, 5, 8]))
+    if n_dist == 0:
+        return TipCamera(
+            fx=draw(st.floats(1.0, 5000.0)),
+            fy=draw(st.floats(1.0, 5000.0)),
+            cx=draw(st.floats(-100.0, 2000.0)),
+            cy=draw(st.floats(-100.0, 2000.0)),
+            width=draw(st.integers(1, 8000)),
+            height=draw(st.integers(1, 8000)),
+            tip_T_cam=_pose(gtsam.Rot3.RzRyRx(*angles).matrix(), translation),
+        )
+    # a distortion must be invertible over the image: a lens of at most ~110 deg with a
+    # barrel distortion up to a wide-angle one's, the principal point in the image
+    width, height = draw(st.integers(1, 8000)), draw(st.integers(1, 8000))
+    scale = draw(st.floats(0.0, 1.0))
     return TipCamera(
-        fx=draw(st.floats(1.0, 5000.0)),
-        fy=draw(st.floats(1.0, 5000.0)),
-        cx=draw(st.floats(-100.0, 2000.0)),
-        cy=draw(st.floats(-100.0, 2000.0)),
-        width=draw(st.integers(1, 8000)),
-        height=draw(st.integers(1, 8000)),
-        distortion=tuple(draw(st.lists(st.floats(-1.0, 1.0), min_size=n_dist, max_size=n_dist))),
+        fx=draw(st.floats(max(width, height), 10000.0)),
+        fy=draw(st.floats(max(width, height), 10000.0)),
+        cx=draw(st.floats(0.0, width)),
+        cy=draw(st.floats(0.0, height)),
+        width=width,
+        height=height,
+        distortion=tuple(scale * v for v in (-0.3, 0.1, 0.001, -0.001, 0.0, 0.0, 0.0, 0.0)
+                         [:n_dist]),
         tip_T_cam=_pose(gtsam.Rot3.RzRyRx(*angles).matrix(), translation),
     )
 

@@ -9,6 +9,9 @@ vector); :mod:`apcc_graph.estimation.front_end` holds that loop. Errors pile up 
 sequence and outward along the robot (the paper says so; docs/estimation.md, "Two frames", says
 why): this is the baseline the factor-graph back end must beat, and its initialiser.
 
+A camera whose RANSAC keeps fewer than a handful of correspondences per frame pair is warned
+about (``ObservationWarning``).
+
 Outcomes per frame and segment (``Estimate.status``): ``"ok"``; ``"no-motion"`` (the camera saw
 no parallax: the angle is carried over, which is what the data say); ``"no-consensus"`` or
 ``"too-few-correspondences"`` (RANSAC failed: the angle is carried over and flagged);
@@ -89,7 +92,41 @@ def chain_estimate(
     x0 = start_vector(sequence.robot, bending, theta0, psi0)
     x, status, inliers = chain_vectors(sequence, bending, x0, threshold_px, confidence, seed,
                                        progress)
+    _warn_few_inliers(sequence, inliers)
     return bending_estimate("chain", sequence, bending, x, None, status, inliers)
+
+
+def _warn_few_inliers(sequence: Sequence, inliers: NDArray[np.int64]) -> None:
+    """An ``ObservationWarning`` for each camera whose RANSAC kept fewer than a handful of
+    correspondences per frame pair, or less than :data:`FEW_KEPT` of them (its segment's angle
+    then drifts unseen)."""
+    import warnings
+
+    from apcc_graph.estimation.methods import FEW_TRACKS_PER_FRAME, ObservationWarning
+
+    if sequence.n_frames < 2:
+        return
+    for i in sequence.robot.camera_segments:
+        trk = sequence.tracks.get(i)
+        if trk is None or len(trk) == 0:
+            continue  # warned about before the estimate
+        seen = np.bincount(trk.frames, minlength=sequence.n_frames)
+        possible = int(np.minimum(seen[:-1], seen[1:]).sum())
+        per_pair = float(inliers[1:, i].mean())
+        kept = int(inliers[1:, i].sum()) / max(possible, 1)
+        if per_pair < FEW_TRACKS_PER_FRAME or kept < FEW_KEPT:
+            warnings.warn(f"chain: camera cam_{i + 1} (segment {i + 1}) kept {per_pair:.2g} "
+                          f"correspondences per frame pair, {100 * kept:.0f}% of what its "
+                          "tracks offer "
+                          f"(expected at least {FEW_TRACKS_PER_FRAME} and "
+                          f"{100 * FEW_KEPT:.0f}%): segment {i + 1}'s angle is barely observed "
+                          "and may drift far; check its tracks and its camera's calibration",
+                          ObservationWarning, stacklevel=4)
+
+
+FEW_KEPT = 0.2
+"""The chain warns about a camera whose RANSAC keeps less than this fraction of the
+correspondences its tracks offer (chance agreement of unrelated points is a few percent)."""
 
 
 def _base(sequence: Sequence, frame: int) -> FloatArray | None:

@@ -30,8 +30,14 @@ RECORDS: dict[str, type] = {"chain": ChainOptions, "batch": BatchOptions,
 
 
 class ObservationWarning(UserWarning):
-    """A camera of the robot observed nothing in the whole sequence: its segment's angle rests
-    on the cameras further out and on the motion prior."""
+    """A camera of the robot observed nothing in the whole sequence (its segment's angle rests
+    on the cameras further out and on the motion prior), or almost nothing (fewer than
+    :data:`FEW_TRACKS_PER_FRAME` tracks per frame, or, in the chain, inliers per frame)."""
+
+
+FEW_TRACKS_PER_FRAME = 5
+"""Fewer tracks (or the chain's RANSAC inliers) per frame than this, on average, and a camera
+is warned about: a bend rests on a handful of points then."""
 
 
 def check_observations(sequence: Sequence) -> None:
@@ -51,6 +57,12 @@ def check_observations(sequence: Sequence) -> None:
                           f"whole sequence: segment {cam + 1}'s angle rests on the cameras "
                           "further out and on the motion prior", ObservationWarning,
                           stacklevel=3)
+        elif count < FEW_TRACKS_PER_FRAME * sequence.n_frames:
+            warnings.warn(f"camera cam_{cam + 1} (segment {cam + 1}) has {count} observations "
+                          f"in {sequence.n_frames} frames ({count / sequence.n_frames:.2g} per "
+                          f"frame; fewer than {FEW_TRACKS_PER_FRAME} per frame observe a bend "
+                          "poorly): check its tracks and its camera's calibration",
+                          ObservationWarning, stacklevel=3)
 
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
@@ -104,7 +116,8 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             the start (the robot never moved enough; the message says which segment).
 
     Warns:
-        ObservationWarning: a camera observed nothing in the whole sequence (named).
+        ObservationWarning: a camera observed nothing in the whole sequence, or fewer than
+            :data:`FEW_TRACKS_PER_FRAME` tracks per frame (the chain: RANSAC inliers) (named).
         ModelFitWarning: the batch's or the smoother's estimate fails the residual test
             (:mod:`~apcc_graph.estimation.model_fit`, kept as the estimate's ``model_fit``;
             ``Robustness(misfit_alarm=None)`` skips it): the images contradict the estimate,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -94,6 +95,79 @@ def _undistort(uv: FloatArray, K: FloatArray, dist: FloatArray, model: str = "pi
     return out.reshape(-1, 2)
 
 
+_RAY_ANGLES = np.radians(np.linspace(0.0, 89.0, 891))
+"""Angles of rays from the optical axis at which the distortion is checked (0.1 deg apart)."""
+_HINT = "check the coefficients' values, order (OpenCV: k1, k2, p1, p2[, k3, ...]) and model"
+ROUND_TRIP_PX = 0.1
+"""How far a pixel may land from itself after undistorting it and projecting it back."""
+
+
+@lru_cache(maxsize=256)
+def _distortion_problem(fx: float, fy: float, cx: float, cy: float, width: int, height: int,
+                        dist: tuple[float, ...], model: str) -> str | None:
+    """Why a distortion cannot be inverted over the image, or ``None``: checked with the
+    camera's own projection. Toward each image corner and edge middle, the distorted radius must
+    grow with the ray's angle until it reaches that border (else some pixels are seen by two
+    rays, or none); and pixels over the image, undistorted and projected back, must land where
+    they were (else undistortion diverges there)."""
+    camera = object.__new__(TipCamera)  # the unchecked camera, to look at it
+    for name, value in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy), ("width", width),
+                        ("height", height), ("distortion", dist), ("model", model),
+                        ("tip_T_cam", np.eye(4))):
+        object.__setattr__(camera, name, value)
+    border = np.array([[0.0, 0.0], [width, 0.0], [0.0, height], [width, height],
+                       [width / 2, 0.0], [width / 2, height], [0.0, height / 2],
+                       [width, height / 2]])
+    toward = (border - [cx, cy]) / [fx, fy]
+    needed = np.linalg.norm(toward, axis=1)
+    r = np.tan(_RAY_ANGLES)
+    for direction, reach, (bu, bv) in zip(toward, needed, border.tolist(), strict=True):
+        if reach <= 0.0:
+            continue
+        unit = direction / reach
+        pts = np.column_stack([r * unit[0], r * unit[1], np.ones_like(r)])
+        uv = camera.project(pts)
+        with np.errstate(all="ignore"):  # signed: a fold through the centre changes sign
+            radius = ((uv - [cx, cy]) / [fx, fy]) @ unit
+        reached = np.flatnonzero(radius >= reach)
+        upto = int(reached[0]) + 1 if len(reached) else len(radius)
+        grows = np.diff(radius[:upto]) > 0.0
+        if not np.all(grows) or not np.all(np.isfinite(radius[:upto])):
+            turn = int(np.argmin(grows)) if len(grows) else 0
+            return (f"not invertible over the {width}x{height} image: toward pixel "
+                    f"({bu:g}, {bv:g}) the image radius stops growing at "
+                    f"{np.degrees(_RAY_ANGLES[turn]):.1f} deg from the optical axis, "
+                    f"{radius[turn] * max(fx, fy):.4g} px from the principal point (the border "
+                    f"is {reach * max(fx, fy):.4g} px away), so some pixels are seen by "
+                    f"several rays; {_HINT}")
+        if not len(reached):
+            continue
+        # rays beyond the border, up to well past where a pinhole would see it, stay outside
+        # (a radius that falls back below the border, or through zero, crossed the image)
+        limit = 1.25 * max(float(_RAY_ANGLES[upto - 1]), math.atan(reach))
+        later = np.flatnonzero((_RAY_ANGLES > _RAY_ANGLES[upto - 1]) & (_RAY_ANGLES <= limit)
+                               & (radius < reach))
+        if len(later):
+            back = int(later[0])
+            return (f"not invertible over the {width}x{height} image: toward pixel "
+                    f"({bu:g}, {bv:g}) rays reach the border at "
+                    f"{np.degrees(_RAY_ANGLES[upto - 1]):.1f} deg from the optical axis, but "
+                    f"rays at {np.degrees(_RAY_ANGLES[back]):.1f} deg land back inside the image, "
+                    f"so some pixels are seen by several rays; {_HINT}")
+    grid = np.stack(np.meshgrid(np.linspace(0.0, width - 1.0, 7),
+                                np.linspace(0.0, height - 1.0, 7)), -1).reshape(-1, 2)
+    with np.errstate(all="ignore"):
+        back = camera.project(np.column_stack([camera.normalized(grid), np.ones(len(grid))]))
+    miss = np.linalg.norm(back - grid, axis=1)
+    miss[~np.isfinite(miss)] = np.inf
+    worst = int(np.argmax(miss))
+    if miss[worst] > ROUND_TRIP_PX:
+        u, v = grid[worst].tolist()
+        return (f"not invertible over the {width}x{height} image: pixel ({u:.0f}, {v:.0f}) "
+                f"undistorted and projected back lands {miss[worst]:.3g} px away; {_HINT}")
+    return None
+
+
 @dataclass(frozen=True, eq=False)
 class TipCamera:
     """A pinhole camera with OpenCV distortion, rigidly mounted on a segment tip.
@@ -157,6 +231,11 @@ class TipCamera:
             )
         object.__setattr__(self, "distortion", dist)
         object.__setattr__(self, "tip_T_cam", validate_pose("TipCamera.tip_T_cam", self.tip_T_cam))
+        if dist and self.model == "pinhole":  # a fisheye's image circle may leave corners dark
+            problem = _distortion_problem(self.fx, self.fy, self.cx, self.cy, self.width,
+                                          self.height, dist, self.model)
+            if problem:
+                raise ValueError(f"TipCamera.distortion = {list(dist)}: {problem}")
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, TipCamera):
