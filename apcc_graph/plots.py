@@ -21,8 +21,6 @@ command line. Imports the model and, for type hints only, the benchmarks' result
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Sequence as SequenceOf
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -30,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from apcc_graph.io.atomic import atomic_file
 from apcc_graph.model.arrays import rms
 from apcc_graph.model.joint_chain import apcc_joint_frames
 from apcc_graph.model.kinematics import pcc_in_plane
@@ -80,14 +79,8 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
     """
     path = Path(path)
     fmt = check_figure_path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            fig.savefig(handle, format=fmt, dpi=dpi)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_file(path) as handle:  # the umask's permissions, whole or not at all
+        fig.savefig(handle, format=fmt, dpi=dpi)
     return path
 
 

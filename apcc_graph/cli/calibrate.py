@@ -48,8 +48,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         parents=[out_option("also write a one-segment robot.toml with the calibrated segment",
                             required=False, metavar="ROBOT.toml"),
                  seed_option(None, "random seed of --render (default 0)"),
-                 force_option("--render into a non-empty PATH (replaces its calibration.toml "
-                              "and *.png), or replace an existing --output")],
+                 force_option("--render into a non-empty PATH (replaced whole once the new "
+                              "images are written), or replace an existing --output")],
     )
     cal.add_argument("file", metavar="PATH",
                      help="calibration TOML file, folder of calibration images, or "
@@ -125,6 +125,7 @@ def run(args: argparse.Namespace) -> str:
 
 def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
     """``calibrate --render``: write a seeded synthetic image folder to ``path``."""
+    from apcc_graph.io.output_folder import check_writable, staged_folder
     from apcc_graph.model.segment import Segment
     from apcc_graph.simulation.calibration_photos import write_calibration_images
 
@@ -132,6 +133,10 @@ def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
                if getattr(args, name) is None]
     if missing:
         raise UserError(f"--render needs {', '.join(missing)}")
+    if path.exists() and (not path.is_dir() or any(path.iterdir())) and not args.force:
+        raise UserError(f"{path}: exists and is not empty; choose another PATH or add --force "
+                        "(replaces it whole)")
+    check_writable(path)  # before rendering
     bends = [math.radians(v) for v in degree_list(
         args.bends_deg, "--bends-deg", ", e.g. -80,-40,0")]
     theta_max = max(abs(b) for b in bends) if args.theta_max_deg is None else math.radians(
@@ -141,8 +146,9 @@ def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
     tilt = math.radians(args.tilt_deg or 0.0) / math.sqrt(2.0)
     seed = 0 if args.seed is None else args.seed
     noise = 1.0 if args.noise is None else args.noise
-    written = write_calibration_images(path, segment, bends, seed=seed, noise=noise,
-                                       tilt=(tilt, tilt), force=args.force)
+    with staged_folder(path, replace=args.force) as staging:  # whole, or not at all
+        written = write_calibration_images(staging, segment, bends, seed=seed, noise=noise,
+                                           tilt=(tilt, tilt), force=True)
     return (f"wrote {path}: {len(written) - 1} synthetic image(s) and {written[-1].name} "
             f"(seed {seed}, noise {noise:g} grey levels)")
 

@@ -25,8 +25,8 @@ from apcc_graph.cli import (
 )
 from apcc_graph.cli.common import Parser, UserError
 from apcc_graph.cli.console import quiet_option
-from apcc_graph.interrupts import catching_interrupts, check_interrupted
 from apcc_graph.io.console import print_line
+from apcc_graph.io.interrupts import catching_interrupts, check_interrupted
 
 SUBCOMMANDS = (calibrate, simulate, track, estimate, live, evaluate, montecarlo, plot, robot,
                bench)

@@ -55,6 +55,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> str:
     """Run the study and return its report."""
     from apcc_graph.evaluation.montecarlo import format_montecarlo, run_montecarlo
+    from apcc_graph.io.output_folder import check_writable
 
     out = Path(args.out)
     if out.exists() and not args.force and (not out.is_dir() or any(
@@ -64,6 +65,7 @@ def run(args: argparse.Namespace) -> str:
                         "another --out or add --force")
     if not Path(args.robot).is_file():
         raise UserError(f"{args.robot}: no such robot file")
+    check_writable(out)  # before any computing
     runs = run_montecarlo(args.robot, args.runs, args.frames, out, args.method, args.seed,
                           args.noise_px, args.outliers, args.workers, args.scheduler,
                           redo=args.force, progress=True)

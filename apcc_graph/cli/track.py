@@ -79,6 +79,7 @@ def _is_sequence_folder(source: str) -> bool:
 def _track_recording(args: argparse.Namespace) -> str:
     """A bag or video files into a new sequence folder."""
     from apcc_graph.frontend.recordings import bag_streams, track_recording, video_streams
+    from apcc_graph.io.output_folder import staged_folder
     from apcc_graph.io.robot_file import load_robot
     from apcc_graph.io.sequence_folder import save_sequence
 
@@ -88,7 +89,9 @@ def _track_recording(args: argparse.Namespace) -> str:
         raise UserError("a bag or videos need --robot (its robot.toml) and --out (the sequence "
                         "folder to write)")
     robot = load_robot(args.robot)
-    out = check_output_folder(args.out, args.force)
+    inputs = [args.robot, *([] if args.source is None else [args.source]),
+              *([] if args.video is None else [v for v in args.video.split(",") if v])]
+    out = check_output_folder(args.out, args.force, inputs=inputs)
     n = len(robot.camera_segments)
     if args.video is not None:
         if args.topics is not None:
@@ -102,7 +105,8 @@ def _track_recording(args: argparse.Namespace) -> str:
         topics = _topics(args.topics, args.robot, robot)
         streams = bag_streams(args.source, topics, n)
     sequence, matched = track_recording(streams, robot, args.sync_tolerance, progress=True)
-    save_sequence(sequence, out)
+    with staged_folder(out, replace=args.force) as staging:  # whole, or not at all
+        save_sequence(sequence, staging)
     lines = [f"{sequence.n_frames} frames ({matched.unmatched} of the first camera's images "
              f"had no match within {matched.tolerance:.4g} s)"]
     lines += [f"  {s.name}: {len(s.timestamps)} images, {d} dropped"

@@ -2,8 +2,10 @@
 summary table, in process or on a Dask cluster.
 
 A sequence's outputs are complete when its folder holds ``done.txt``, written last (after
-``theta.csv`` and the TUM files, each written atomically): a re-run skips those sequences, and a
-run killed half-way leaves nothing that looks complete. A sequence that fails is reported in the
+``theta.csv`` and the TUM files): a re-run skips those sequences. Each sequence's folder is
+written whole (in a staging folder beside it, moved into place when complete), so a run
+killed or interrupted half-way leaves the sequences it finished complete and nothing of the
+one it was on. A sequence that fails is reported in the
 summary with its one-line error and does not stop the others.
 
 Dask (``pip install "apcc-graph[dask]"``) is imported only when more than one worker is asked
@@ -23,6 +25,7 @@ statistical profiler that samples each worker's stack every 10 ms. A cluster giv
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
@@ -85,22 +88,28 @@ def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
     done = Path(out) / DONE
     if done.is_file() and not redo:
         return _skipped(sequence, out, method, done)
+    from apcc_graph.estimation.failures import gtsam_failure, is_gtsam_error
+    from apcc_graph.io.output_folder import staged_folder
+
     start = time.perf_counter()
     try:
-        with threadpool_limits(limits=1, user_api="blas"):
-            run = _estimate_and_write(sequence, out, method, options, start)
-        atomic_write_text(done, summary_csv([run]))
+        with threadpool_limits(limits=1, user_api="blas"), \
+                staged_folder(out, replace=True) as staging:
+            run = _estimate_and_write(sequence, out, method, options, start, staging)
+            atomic_write_text(staging / DONE, summary_csv([run]))
         return run
     except Exception as error:  # noqa: BLE001 - any failure is this sequence's status
         kind = "" if isinstance(error, ValueError | OSError) else f"{type(error).__name__}: "
-        message = kind + " ".join(str(error).split())
+        message = (gtsam_failure(error) if is_gtsam_error(error)
+                   else kind + " ".join(str(error).split()))
         return SequenceRun(sequence, out, method, 0, time.perf_counter() - start, (),
                            f"failed: {message}")
 
 
 def _estimate_and_write(sequence: str, out: str, method: str, options: dict[str, Any],
-                        start: float) -> SequenceRun:
-    """The work of :func:`estimate_one`, which handles its errors."""
+                        start: float, staging: Path) -> SequenceRun:
+    """The work of :func:`estimate_one`, which handles its errors; the files go to
+    ``staging``, which becomes ``out`` when complete."""
     from apcc_graph.estimation.methods import estimate
     from apcc_graph.io import load_sequence
     from apcc_graph.io.estimates import save_estimate
@@ -109,7 +118,7 @@ def _estimate_and_write(sequence: str, out: str, method: str, options: dict[str,
     if isinstance(options.get("theta0"), str) and options["theta0"] == "truth":
         options = {**options, "theta0": None if seq.thetas is None else seq.thetas[0]}
     result = estimate(seq, method=method, **options)
-    save_estimate(result, out)
+    save_estimate(result, staging)
     rms = (() if seq.thetas is None
            else tuple(float(v) for v in result.rms(seq.thetas, seq.psis)))
     return SequenceRun(sequence, out, method, result.n_frames, time.perf_counter() - start,
@@ -186,10 +195,30 @@ def estimate_many(sequences: Sequence[str | Path], out_root: str | Path, method:
     """
     options = {**(options or {}), "progress": False}  # one bar, over the sequences
     jobs = [(str(s), str(output_folder(out_root, s)), method, options, redo) for s in sequences]
+    created = not Path(out_root).exists()
     Path(out_root).mkdir(parents=True, exist_ok=True)
-    runs = map_tasks(estimate_one, jobs, workers, scheduler, progress, "sequences")
+    try:
+        runs = map_tasks(estimate_one, jobs, workers, scheduler, progress, "sequences")
+    except BaseException:
+        clean_up_interrupted(out_root, [job[1] for job in jobs], created)
+        raise
     atomic_write_text(Path(out_root) / "summary.csv", summary_csv(runs))
     return runs
+
+
+def clean_up_interrupted(out_root: str | Path, outs: Sequence[str], created: bool) -> None:
+    """After an interrupted run: the staging folders a killed worker left behind removed, and
+    ``out_root`` too if this run created it and finished nothing."""
+    import shutil
+
+    from apcc_graph.io.output_folder import staging_folders
+
+    for out in outs:
+        for staging in staging_folders(out):
+            shutil.rmtree(staging, ignore_errors=True)
+    if created:
+        with contextlib.suppress(OSError):
+            Path(out_root).rmdir()  # only when empty
 
 
 def map_tasks(function: Callable[..., Result], jobs: Sequence[tuple[Any, ...]],
@@ -228,19 +257,36 @@ def _on_dask(function: Callable[..., Result], jobs: list[tuple[Any, ...]], worke
         raise ValueError('a Dask scheduler needs Dask: pip install "apcc-graph[dask]" '
                          "(or leave out --scheduler to run here)") from None
     cluster = None
-    if scheduler is None:
-        cluster = _local_cluster(workers or os.cpu_count() or 1)
-    with Client(scheduler or cluster) as client:
-        futures = {client.submit(function, *job, pure=False): i for i, job in enumerate(jobs)}
-        results: list[Result | None] = [None] * len(jobs)
-        bar = progress_bar(total=len(jobs), desc=label, progress=progress)
-        for future in as_completed(futures):
-            results[futures[future]] = future.result()
-            bar.update()
-        bar.close()
-    if cluster is not None:
-        cluster.close()
+    try:
+        if scheduler is None:
+            cluster = _local_cluster(workers or os.cpu_count() or 1)
+        with Client(scheduler or cluster) as client:
+            futures = {client.submit(function, *job, pure=False): i
+                       for i, job in enumerate(jobs)}
+            results: list[Result | None] = [None] * len(jobs)
+            bar = progress_bar(total=len(jobs), desc=label, progress=progress)
+            try:
+                for future in as_completed(futures):
+                    results[futures[future]] = future.result()
+                    bar.update()
+            except BaseException:
+                _quiet_dask()  # the shutdown's own complaints are no news after Ctrl-C
+                raise
+            finally:
+                bar.close()
+    finally:
+        if cluster is not None:
+            cluster.close()
     return [r for r in results if r is not None]
+
+
+def _quiet_dask() -> None:
+    """Dask's loggers silenced: an interrupted cluster's shutdown reports every lost task and
+    worker, which says nothing the one line of the interruption does not."""
+    import logging
+
+    for name in ("distributed", "tornado", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def _local_cluster(workers: int) -> Any:
@@ -252,6 +298,11 @@ def _local_cluster(workers: int) -> Any:
     environ = {name: value for name, value in
                dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                if name != "MALLOC_TRIM_THRESHOLD_"}
+    # Ctrl-C reaches the workers too; multiprocessing's resource tracker would then list the
+    # semaphores they left at exit, a warning that is no news after the one-line interruption
+    quiet = "ignore::UserWarning:multiprocessing.resource_tracker"
+    filters = [f for f in os.environ.get("PYTHONWARNINGS", "").split(",") if f]
+    os.environ["PYTHONWARNINGS"] = ",".join(filters + [quiet] * (quiet not in filters))
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ,
                           "distributed.worker.profile.enabled": False}):
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,

@@ -18,22 +18,30 @@ anywhere. Outputs, under ``out``::
     seed_0001/bound.csv   its bound per segment (degrees), written before the estimate
     montecarlo.csv        one row per seed: RMS error and bound per segment, status
 
-A seed whose estimate is complete (``done.txt``) is read back instead of being run again, so an
-interrupted study resumes; a seed that fails is a row with its one-line error.
+Each seed's folder is written whole (in a staging folder beside it, moved into place when
+complete). A seed whose estimate is complete (``done.txt``) is read back instead of being run
+again, so an interrupted study resumes; a seed that fails is a row with its one-line error.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from apcc_graph.estimation.many import DONE, SequenceRun, estimate_one, map_tasks
+from apcc_graph.estimation.many import (
+    DONE,
+    SequenceRun,
+    clean_up_interrupted,
+    estimate_one,
+    map_tasks,
+)
 from apcc_graph.io.atomic import atomic_write_text
+from apcc_graph.io.output_folder import staged_folder
 from apcc_graph.model.arrays import FloatArray, rms
 
 THETA0_SIGMA = math.radians(0.1)
@@ -61,16 +69,19 @@ def run_seed(robot_file: str, frames: int, seed: int, noise_px: float, outliers:
         bound = tuple(math.radians(float(v)) for v in bound_file.read_text().split()[1:])
         return SeedRun(seed, estimate_one(str(sequence), str(estimate), method, options), bound)
     try:
-        bound, options["theta0"] = _simulate_and_bound(robot_file, frames, seed, noise_px,
-                                                       outliers, sequence)
+        # the seed's folder is written whole: in a staging folder, moved into place at the end
+        with staged_folder(root, replace=True) as staging:
+            bound, options["theta0"] = _simulate_and_bound(robot_file, frames, seed, noise_px,
+                                                           outliers, staging / "sequence")
+            atomic_write_text(staging / "bound.csv", "bound_deg " + " ".join(
+                f"{math.degrees(b):.6f}" for b in bound) + "\n")
+            run = estimate_one(str(staging / "sequence"), str(staging / "estimate"), method,
+                               options, True)
     except Exception as error:  # noqa: BLE001 - the seed's status, not the study's end
         failed = SequenceRun(str(sequence), str(estimate), method, 0, 0.0, (),
                              f"failed: {' '.join(str(error).split())}")
         return SeedRun(seed, failed, ())
-    atomic_write_text(bound_file, "bound_deg " + " ".join(f"{math.degrees(b):.6f}"
-                                                          for b in bound) + "\n")
-    return SeedRun(seed, estimate_one(str(sequence), str(estimate), method, options, True),
-                   bound)
+    return SeedRun(seed, replace(run, sequence=str(sequence), out=str(estimate)), bound)
 
 
 def _simulate_and_bound(robot_file: str, frames: int, seed: int, noise_px: float,
@@ -106,10 +117,15 @@ def run_montecarlo(robot_file: str | Path, seeds: int, frames: int, out: str | P
         raise ValueError(f"noise_px = {noise_px}, outliers = {outliers}: expected noise_px > 0 "
                          "and 0 <= outliers < 1")
     root = Path(out)
+    created = not root.exists()
     root.mkdir(parents=True, exist_ok=True)
     jobs = [(str(robot_file), frames, s, noise_px, outliers, method,
              str(root / f"seed_{s:04d}"), redo) for s in range(first_seed, first_seed + seeds)]
-    runs = map_tasks(run_seed, jobs, workers, scheduler, progress, "seeds")
+    try:
+        runs = map_tasks(run_seed, jobs, workers, scheduler, progress, "seeds")
+    except BaseException:  # Ctrl-C: the finished seeds stay, nothing of the others
+        clean_up_interrupted(root, [job[6] for job in jobs], created)
+        raise
     atomic_write_text(root / "montecarlo.csv", montecarlo_csv(runs))
     return runs
 

@@ -197,9 +197,9 @@ def track_sequence(folder: str | Path, force: bool = False,
                    options: TrackerOptions | None = None, progress: bool = False) -> list[Path]:
     """Track the images of a sequence folder and write ``tracks/cam_<i>.csv``.
 
-    Every camera with an ``images/cam_<i>/`` folder must have one image per frame. Tracks are
-    written atomically, and only after every camera was tracked, so a failure leaves the folder
-    as it was.
+    Every camera with an ``images/cam_<i>/`` folder must have one image per frame. The
+    ``tracks/`` folder is replaced whole, and only after every camera was tracked, so a failure
+    or Ctrl-C leaves the folder as it was.
 
     Args:
         folder: the sequence folder (``robot.toml``, ``frames.csv``, ``images/``).
@@ -236,11 +236,25 @@ def track_sequence(folder: str | Path, force: bool = False,
             tracker = KLTTracker((camera.width, camera.height), options)
             images = _folder_images(folder, cam, files, sequence.n_frames)
             texts[cam] = tracks_csv(tracks_of(tracker, images, bar.update))
-    written = []
-    for cam, text in texts.items():
-        atomic_write_text(targets[cam], text)
-        written.append(targets[cam])
-    return written
+    return _write_tracks(folder / "tracks", {targets[cam].name: text
+                                             for cam, text in texts.items()})
+
+
+def _write_tracks(tracks_dir: Path, texts: dict[str, str]) -> list[Path]:
+    """The ``tracks/`` folder replaced whole by one holding ``texts`` (file name -> text) and
+    the other files it held: written beside it and swapped in when complete."""
+    import shutil
+
+    from apcc_graph.io.output_folder import staged_folder
+
+    with staged_folder(tracks_dir, replace=True) as staging:
+        if tracks_dir.is_dir():
+            for kept in tracks_dir.iterdir():
+                if kept.name not in texts and kept.is_file() and kept.name[:1] != ".":
+                    shutil.copy2(kept, staging / kept.name)
+        for name, text in texts.items():
+            atomic_write_text(staging / name, text)
+    return [tracks_dir / name for name in texts]
 
 
 def _folder_images(folder: Path, cam: int, files: dict[int, Path], n_frames: int

@@ -17,7 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO
 
-from apcc_graph.interrupts import check_interrupted
+from apcc_graph.io.interrupts import check_interrupted
 
 _UMASK_LOCK = threading.Lock()
 

@@ -89,7 +89,15 @@ def tum_text(timestamps: np.ndarray, world_T_tip: np.ndarray) -> str:
 
 
 def save_estimate(estimate: Estimate, folder: str | Path) -> list[Path]:
-    """Write ``theta.csv`` and ``tips_seg_<i>.tum`` into ``folder``; returns the files written."""
+    """Write ``theta.csv`` and ``tips_seg_<i>.tum`` into ``folder``; returns the files written.
+
+    Each file is written atomically with the umask's permissions. To replace an estimate
+    folder whole (no old TUM file beside a new ``theta.csv``), write into
+    :func:`apcc_graph.io.output_folder.staged_folder`, as ``apcc-graph estimate`` does.
+
+    Raises:
+        OSError: a file could not be written (a full disk, no permission), naming it.
+    """
     folder = Path(folder)
     written = [folder / "theta.csv"]
     atomic_write_text(written[0], theta_csv(estimate))

@@ -16,8 +16,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from apcc_graph.interrupts import check_interrupted
 from apcc_graph.io.atomic import folder_mode, write_error
+from apcc_graph.io.interrupts import check_interrupted
 
 STAGING = ".partial-"
 """What the name of a staging folder holds (``.NAME.partial-XXXX``)."""

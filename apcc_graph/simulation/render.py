@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.io.atomic import folder_mode
 from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
@@ -355,6 +356,7 @@ def write_sequence_images(folder: str | Path, room: TexturedRoom,
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".images-", dir=folder))
+    os.chmod(staging, folder_mode())  # as a folder made with mkdir, not mkdtemp's 0700
     total = sum(len(p) for p in world_T_cam.values())
     try:
         with progress_bar(total=total, desc="render", unit="image", progress=progress) as bar:
