@@ -45,7 +45,7 @@ class _Clock:
 def _busy_estimator(seconds: float) -> LiveEstimator:
     """A live estimator on a controlled clock whose every smoothing takes ``seconds``."""
     clock = _Clock()
-    live = LiveEstimator(load_robot(ROBOT), clock=clock, sleep=clock.sleep)
+    live = LiveEstimator(load_robot(ROBOT), np.zeros(3), clock=clock, sleep=clock.sleep)
     process = live._process
 
     def busy(*args: object) -> object:
@@ -71,7 +71,7 @@ def test_under_overload_the_newest_frame_is_taken_and_the_others_dropped() -> No
 
 
 def test_without_real_time_every_frame_is_estimated() -> None:
-    live = LiveEstimator(load_robot(ROBOT), realtime=False)
+    live = LiveEstimator(load_robot(ROBOT), np.zeros(3), realtime=False)
     got = list(live.run(_frames()))
     assert [e.index for e in got] == list(range(FRAMES)) and live.dropped == 0
     final = [fr.frame for e in got for fr in e.final] + [fr.frame for fr in live.finish()]
@@ -105,27 +105,31 @@ def test_appended_estimates_are_readable_at_every_row(tmp_path: Path) -> None:
 def test_live_interrupted_mid_run_leaves_complete_readable_outputs(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    """Ctrl-C after the fifth frame: the command ends cleanly, and theta.csv and the TUM files
-    hold every frame processed (the window's too, smoothed at the end)."""
+    """Ctrl-C after the fifth frame (the stop event set, as the SIGINT handler sets it): the
+    command stops at the next frame boundary, smooths and writes the window, prints its summary
+    and exits with 130; theta.csv and the TUM files hold every frame processed."""
     from apcc_graph.estimation import live as live_module
 
     run = LiveEstimator.run
 
-    def interrupted(self: LiveEstimator, frames: object) -> Iterator[object]:
-        for k, est in enumerate(run(self, frames)):  # type: ignore[arg-type]
+    def interrupted(self: LiveEstimator, frames: object, stop: object = None
+                    ) -> Iterator[object]:
+        for k, est in enumerate(run(self, frames, stop)):  # type: ignore[arg-type]
             yield est
             if k == 4:
-                raise KeyboardInterrupt
+                stop.set()  # type: ignore[attr-defined]
 
     monkeypatch.setattr(LiveEstimator, "run", interrupted)
     monkeypatch.setattr(live_module, "recording_frames", lambda *a, **k: _frames())
     monkeypatch.setattr("apcc_graph.frontend.recordings.video_streams", lambda files: [])
     out = tmp_path / "live"
     code = main(["live", "--video", "a.mp4,b.mp4,c.mp4", "--robot", str(ROBOT), "--out",
-                 str(out), "--no-realtime"])
-    assert code == 0
-    text = capsys.readouterr().out
-    assert text.startswith("interrupted: 5 frames estimated") and "wrote 5 rows" in text
+                 str(out), "--no-realtime", "--theta0-deg", "0,0,0"])
+    assert code == 130
+    captured = capsys.readouterr()
+    assert captured.out.startswith("interrupted: 5 frames estimated")
+    assert "wrote 5 rows" in captured.out
+    assert captured.err.strip().splitlines()[-1] == "apcc-graph: interrupted"
     times, thetas, _ = load_theta_csv(out / "theta.csv")
     np.testing.assert_allclose(times, np.arange(5) / 30.0)
     assert np.all(np.isfinite(thetas))
@@ -139,17 +143,92 @@ def test_live_interrupted_mid_run_leaves_complete_readable_outputs(
     assert "--video names 1 files for 3 cameras" in capsys.readouterr().err
 
 
-def test_a_machine_that_does_not_keep_up_is_warned_about() -> None:
-    """Once more frames were dropped than smoothed (after 30 smoothed), a LiveWarning says so,
-    once; a run that keeps up says nothing."""
+def test_a_machine_that_does_not_keep_up_is_warned_about_by_rate_and_early() -> None:
+    """Smoothing takes 0.1 s while frames arrive at 30 per second: once the first second of
+    the recording has passed (not after 30 smoothed frames), one LiveWarning gives both rates;
+    a run that keeps up (0.01 s per frame) says nothing."""
     from apcc_graph.estimation.live import LiveWarning
 
-    def many() -> Iterator[tuple[int, float, dict[int, np.ndarray]]]:
-        frames = list(_frames(25))
-        for f in range(120):
-            yield f, f / 30.0, frames[f % 25][2]
+    def frames() -> Iterator[tuple[int, float, dict[int, np.ndarray]]]:
+        images = [imgs for _, _, imgs in _frames(15)]
+        for f in range(45):
+            yield f, f / 30.0, images[f % 15 if (f // 15) % 2 == 0 else 14 - f % 15]
 
     live = _busy_estimator(0.1)
-    with pytest.warns(LiveWarning, match=r"frames were dropped and 30 smoothed") as caught:
-        list(live.run(many()))
-    assert len([w for w in caught if w.category is LiveWarning]) == 1
+    with pytest.warns(LiveWarning, match=r"10\.\d frames per second of the recording are "
+                      r"smoothed of the 30\.0 arriving") as caught:
+        got = list(live.run(frames()))
+    rate = [str(w.message) for w in caught if "frames per second" in str(w.message)]
+    assert len(rate) == 1 and "by frame 31 " in rate[0]  # as the first second has passed
+    assert len(got) < 20  # a short input: fewer than 30 smoothed frames in all
+
+    import warnings
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", "live: by frame", LiveWarning)
+        assert len(list(_busy_estimator(0.01).run(frames()))) == 45
+
+
+SIGINT_SCRIPT = """
+import sys
+import numpy as np
+from apcc_graph.bench.tracking import texture
+from apcc_graph.cli import main
+from apcc_graph.estimation import live
+
+def frames(*args, **kwargs):
+    bases = [texture(20 + cam, (480, 700)) for cam in range(3)]
+    for f in range(100000):
+        x = 2 * (f % 30 if (f // 30) % 2 == 0 else 29 - f % 30)
+        yield f, f / 30.0, {cam: np.ascontiguousarray(b[:, x:x + 640])
+                            for cam, b in enumerate(bases)}
+
+live.recording_frames = frames
+import apcc_graph.frontend.recordings as recordings
+recordings.video_streams = lambda files: []
+sys.exit(main(["live", "--video", "a.mp4,b.mp4,c.mp4", "--robot", sys.argv[1], "--out",
+               sys.argv[2], "--no-realtime", "--theta0-deg", "0,0,0", "--lag", "0.3"]))
+"""
+
+
+def _rows(path: Path) -> int:
+    try:
+        return max(path.read_text().count("\n") - 1, 0)
+    except FileNotFoundError:
+        return 0
+
+
+@pytest.mark.parametrize("rows_before", [1, 8, 20])
+def test_sigint_to_live_keeps_every_final_row(tmp_path: Path, rows_before: int) -> None:
+    """SIGINT to a running ``apcc-graph live --no-realtime`` (a subprocess) once theta.csv has
+    ``rows_before`` rows: it stops at a frame boundary (never inside a gtsam update), smooths
+    the window and writes it, prints one line on stderr and exits 130; every row written
+    before the signal is in theta.csv, which reads back, as many TUM lines as rows."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "live"
+    script = tmp_path / "run_live.py"
+    script.write_text(SIGINT_SCRIPT)
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    proc = subprocess.Popen([sys.executable, str(script), str(ROBOT), str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 240
+    while _rows(out / "theta.csv") < rows_before and proc.poll() is None:
+        assert time.monotonic() < deadline, "no rows written in time"
+        time.sleep(0.02)
+    seen = _rows(out / "theta.csv")
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    assert stderr.strip().splitlines()[-1] == "apcc-graph: interrupted"
+    assert stdout.startswith("interrupted: ")
+    table = load_theta_table(out / "theta.csv")
+    assert len(table.timestamps) > seen  # the window's frames too, smoothed at the end
+    frames = table.frame_numbers()
+    assert np.all(np.diff(frames) > 0) and np.all(np.isfinite(table.thetas))
+    for i in range(1, 4):
+        assert (out / f"tips_seg_{i}.tum").read_text().count("\n") == len(frames)

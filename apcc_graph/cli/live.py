@@ -5,9 +5,9 @@ appending each final estimate to ``theta.csv`` and the TUM files
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from apcc_graph.cli.common import (
     int_list,
     non_negative,
 )
+
+if TYPE_CHECKING:
+    from apcc_graph.estimation.live import LiveEstimate
 
 EXAMPLE = (
     "examples:\n"
@@ -35,8 +38,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "as they arrive, from a ROS bag (SOURCE), one video file per camera (--video) or "
         "cameras plugged in (--devices). Each frame's final estimate is appended to "
         "--out/theta.csv and tips_seg_<i>.tum and flushed, so a crash loses nothing already "
-        "estimated; a line on stderr shows the rate, the latency and the current angles; "
-        "Ctrl-C ends cleanly (the frames still in the window are smoothed and written). A "
+        "estimated; on a terminal a line on stderr shows the rate, the latency and the current "
+        "angles (an angle beyond its segment's limit is written clamped to it and flagged in "
+        "clamped_<i>, with a warning). Ctrl-C stops at the next frame: the frames still in the "
+        "window are smoothed and written, then the command exits with code 130. Without "
+        "--theta0-deg the start is searched in the first second of frames, as estimate does. A "
         "recording plays at its own pace: every frame is tracked, but when the smoother falls "
         "behind, the frames that arrived while it was busy are not smoothed but the newest, "
         "and are counted as dropped (--no-realtime smooths every frame, as fast as it can). "
@@ -51,7 +57,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     live.add_argument("--robot", required=True, help="robot.toml")
     live.add_argument("--out", required=True, help="folder for theta.csv and tips_seg_<i>.tum")
     live.add_argument("--theta0-deg", default=None,
-                      help="starting configuration, degrees, one per segment (default straight)")
+                      help="starting configuration, degrees, one per segment (default: searched in "
+                      "the first second of frames)")
     live.add_argument("--lag", type=float, default=1.0, help="smoother lag, seconds (default 1)")
     live.add_argument("--sync-tolerance", type=non_negative, default=None,
                       help="seconds between the cameras' images of one frame (bag, videos)")
@@ -62,10 +69,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> str:
-    """Run the live loop; returns the summary."""
+    """Run the live loop; returns the summary (on Ctrl-C: writes the final rows, prints the
+    summary, then raises ``KeyboardInterrupt`` for the exit code 130)."""
     from apcc_graph.cli.estimate import _theta0
     from apcc_graph.estimation.live import LiveEstimator
+    from apcc_graph.estimation.live_guards import deferred_interrupts
     from apcc_graph.estimation.smoother_options import SmootherOptions
+    from apcc_graph.io.console import StatusLine
     from apcc_graph.io.estimates import AppendedEstimate
     from apcc_graph.io.robot_file import load_robot
 
@@ -78,34 +88,46 @@ def run(args: argparse.Namespace) -> str:
     estimator = LiveEstimator(robot, theta0, SmootherOptions(lag=args.lag),
                               realtime=not args.no_realtime)
     files = AppendedEstimate(out, robot.n_segments, lambda th: robot.forward(th))
-    latencies, processed, began, interrupted = [], 0, time.monotonic(), False
-    try:
-        shown = 0.0
-        for est in estimator.run(frames):
-            for fr in est.final:
-                files.append(fr.frame, fr.timestamp, fr.thetas, fr.sigmas)
-            processed += 1
-            latencies.append(est.latency)
-            if time.monotonic() - shown > 0.5:
-                shown = time.monotonic()
-                angles = " / ".join(f"{np.degrees(v):6.1f}" for v in est.thetas)
-                sys.stderr.write(f"\rframe {est.index:6d}  {est.fps:5.1f} fps  latency "
-                                 f"{1e3 * est.latency:6.0f} ms  dropped {est.dropped:5d}  "
-                                 f"theta {angles} deg ")
-                sys.stderr.flush()
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        for fr in estimator.finish():
-            files.append(fr.frame, fr.timestamp, fr.thetas, fr.sigmas)
-        files.close()
-        sys.stderr.write("\n")
+    status = StatusLine()
+    latencies, processed, began = [], 0, time.monotonic()
+    with deferred_interrupts() as stop:
+        try:
+            shown = 0.0
+            for est in estimator.run(frames, stop):
+                for fr in est.final:
+                    files.append(fr.frame, fr.timestamp, fr.thetas, fr.sigmas, fr.clamped)
+                processed += 1
+                latencies.append(est.latency)
+                if time.monotonic() - shown > 0.5:
+                    shown = time.monotonic()
+                    status.show(_status_text(est))
+        finally:
+            status.close()
+            for fr in estimator.finish():
+                files.append(fr.frame, fr.timestamp, fr.thetas, fr.sigmas, fr.clamped)
+            files.close()
     wall = time.monotonic() - began
     median = 1e3 * float(np.median(latencies)) if latencies else float("nan")
-    return (f"{'interrupted: ' if interrupted else ''}{processed} frames estimated in "
-            f"{wall:.1f} s ({processed / max(wall, 1e-9):.1f} per second), {estimator.dropped} "
-            f"dropped, median latency {median:.0f} ms; wrote {files.rows} rows to "
-            f"{Path(out) / 'theta.csv'} and tips_seg_<i>.tum")
+    clamped = (f"; {files.clamped_rows} rows with an angle clamped to its limit (clamped_i)"
+               if files.clamped_rows else "")
+    summary = (f"{'interrupted: ' if estimator.interrupted else ''}{processed} frames estimated "
+               f"in {wall:.1f} s ({processed / max(wall, 1e-9):.1f} per second), "
+               f"{estimator.dropped} dropped, median latency {median:.0f} ms; wrote {files.rows} "
+               f"rows to {Path(out) / 'theta.csv'} and tips_seg_<i>.tum{clamped}"
+               + (f"; {estimator.start_search}" if estimator.start_search else ""))
+    if estimator.interrupted:
+        print(summary, flush=True)
+        raise KeyboardInterrupt
+    return summary
+
+
+def _status_text(est: LiveEstimate) -> str:
+    """The status line of one estimate (an angle clamped to its limit marked ``!``)."""
+    clamped = np.zeros(len(est.thetas), bool) if est.clamped is None else est.clamped
+    angles = " / ".join(f"{np.degrees(v):6.1f}{'!' if c else ''}"
+                        for v, c in zip(est.thetas, clamped, strict=True))
+    return (f"frame {est.index:6d}  {est.fps:5.1f} fps  latency {1e3 * est.latency:6.0f} ms  "
+            f"dropped {est.dropped:5d}  theta {angles} deg")
 
 
 def _frames(args: argparse.Namespace, robot: object):  # noqa: ANN202 (an iterator of frames)

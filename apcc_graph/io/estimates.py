@@ -51,13 +51,16 @@ class Estimate(Protocol):
     def world_T_tip(self) -> FloatArray: ...  # (F, S, 4, 4)
 
 
-def theta_columns(n_segments: int, spatial: bool = False) -> list[str]:
-    """The header of ``theta.csv`` (with the bending-plane columns when ``spatial``)."""
+def theta_columns(n_segments: int, spatial: bool = False, clamped: bool = False) -> list[str]:
+    """The header of ``theta.csv`` (with the bending-plane columns when ``spatial``, and the
+    live run's ``clamped_i`` flags when ``clamped``)."""
     names = (["frame", "timestamp"] + [f"theta_{i}" for i in range(1, n_segments + 1)]
              + [f"sigma_{i}" for i in range(1, n_segments + 1)])
     if spatial:
         names += ([f"psi_{i}" for i in range(1, n_segments + 1)]
                   + [f"psi_sigma_{i}" for i in range(1, n_segments + 1)])
+    if clamped:
+        names += [f"clamped_{i}" for i in range(1, n_segments + 1)]
     return names
 
 
@@ -114,6 +117,10 @@ class AppendedEstimate:
     run): each final estimate is appended to every file and flushed, so a run that stops or
     crashes leaves complete, readable files of everything estimated so far.
 
+    Frame numbers are the source's and increase strictly; frames the run skipped are absent
+    (gaps). ``theta.csv`` adds ``clamped_1..clamped_S``: 1 where an angle was beyond its
+    segment's ``theta_max`` and is written clamped to it, else 0.
+
     Args:
         folder: where the files go (created if needed; the files are replaced).
         n_segments: segments of the robot.
@@ -125,25 +132,43 @@ class AppendedEstimate:
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.forward = forward
+        self.n_segments = n_segments
         self.rows = 0
+        self.clamped_rows = 0
+        self._last: tuple[int, float] | None = None
         self._theta = open(self.folder / "theta.csv", "w", encoding="utf-8")  # noqa: SIM115
         self._tips = [open(self.folder / f"tips_seg_{i + 1}.tum", "w",  # noqa: SIM115
                            encoding="utf-8") for i in range(n_segments)]
-        self._theta.write(",".join(theta_columns(n_segments)) + "\n")
+        self._theta.write(",".join(theta_columns(n_segments, clamped=True)) + "\n")
         self._theta.flush()
 
-    def append(self, frame: int, timestamp: float, thetas: np.ndarray, sigmas: np.ndarray
-               ) -> None:
-        """One frame's final estimate (angles and sigmas in radians), written and flushed."""
+    def append(self, frame: int, timestamp: float, thetas: np.ndarray, sigmas: np.ndarray,
+               clamped: np.ndarray | None = None) -> None:
+        """One frame's final estimate (angles and sigmas in radians; ``clamped``: ``(S,)``
+        which angles were clamped to their limit), written and flushed.
+
+        Raises:
+            ValueError: a frame number or timestamp not after the previous row's.
+        """
+        if self._last is not None and not (frame > self._last[0]
+                                           and timestamp > self._last[1]):
+            raise ValueError(f"{self.folder / 'theta.csv'}: frame {frame} at {timestamp!r} s "
+                             f"after frame {self._last[0]} at {self._last[1]!r} s; expected "
+                             "strictly increasing frames and times")
+        flags = (np.zeros(self.n_segments, dtype=bool) if clamped is None
+                 else np.asarray(clamped, dtype=bool))
         fields = [str(frame), format_number(timestamp)]
         fields += [format_number(v) for v in np.concatenate([thetas, sigmas]).tolist()]
+        fields += [str(int(v)) for v in flags.tolist()]
         self._theta.write(",".join(fields) + "\n")
         tips = self.forward(np.asarray(thetas, dtype=float)[None])[0]
         for i, out in enumerate(self._tips):
             out.write(tum_text(np.array([timestamp]), tips[i][None]))
         for out in (self._theta, *self._tips):
             out.flush()
+        self._last = (frame, timestamp)
         self.rows += 1
+        self.clamped_rows += int(flags.any())
 
     def close(self) -> None:
         """Close the files."""
@@ -161,6 +186,8 @@ class ThetaTable:
         psis, psi_sigmas: ``(F, S)`` for a spatial estimate, else ``None``.
         frames: ``(F,)`` the sequence's frame numbers of the rows, strictly increasing (a live
             run that skipped frames has gaps); ``None`` means ``0..F-1``.
+        clamped: ``(F, S)`` a live run's flags: the angle was beyond its segment's limit and
+            is written clamped to it; ``None`` when the file has no such columns.
     """
 
     timestamps: FloatArray
@@ -169,6 +196,7 @@ class ThetaTable:
     psis: FloatArray | None = None
     psi_sigmas: FloatArray | None = None
     frames: NDArray[np.int64] | None = None
+    clamped: NDArray[np.bool_] | None = None
 
     def frame_numbers(self) -> NDArray[np.int64]:
         """The rows' frame numbers (``0..F-1`` when not read from a file)."""
@@ -200,7 +228,7 @@ def load_theta_table(path: str | Path) -> ThetaTable:
     if n_seg == 0:
         raise ValueError(f"{path}: line 1: expected columns {','.join(theta_columns(1))}...")
     spatial = "psi_1" in names
-    table = read_table(path, theta_columns(n_seg, spatial))
+    table = read_table(path, theta_columns(n_seg, spatial, clamped="clamped_1" in names))
     if len(table) == 0:
         raise ValueError(f"{path}: no frames")
     frames = table.integers("frame")
@@ -226,10 +254,17 @@ def load_theta_table(path: str | Path) -> ThetaTable:
         raise table.error(int(row), f"theta_{col + 1}", "expected a finite angle (radians)")
     sigmas = values[:, 2 + n_seg:2 + 2 * n_seg].copy()
     if not spatial:
-        return ThetaTable(values[:, 1].copy(), thetas.copy(), sigmas, frames=frames)
+        return ThetaTable(values[:, 1].copy(), thetas.copy(), sigmas, frames=frames,
+                          clamped=_clamped(values, n_seg, names))
     psis = values[:, 2 + 2 * n_seg:2 + 3 * n_seg]
     if not np.all(np.isfinite(psis)):
         row, col = np.argwhere(~np.isfinite(psis))[0]
         raise table.error(int(row), f"psi_{col + 1}", "expected a finite angle (radians)")
     return ThetaTable(values[:, 1].copy(), thetas.copy(), sigmas, psis.copy(),
-                      values[:, 2 + 3 * n_seg:].copy(), frames)
+                      values[:, 2 + 3 * n_seg:2 + 4 * n_seg].copy(), frames,
+                      _clamped(values, n_seg, names))
+
+
+def _clamped(values: np.ndarray, n_seg: int, names: list[str]) -> NDArray[np.bool_] | None:
+    """The ``clamped_i`` flags (the last ``n_seg`` columns), if the file has them."""
+    return values[:, -n_seg:] != 0 if "clamped_1" in names else None
