@@ -17,7 +17,8 @@ from apcc_graph.frontend.recordings import CameraStream
 from apcc_graph.io.estimates import AppendedEstimate, load_theta_csv, load_theta_table
 from apcc_graph.io.robot_file import load_robot
 
-ROBOT = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
+ROOT_DATA = Path(__file__).resolve().parents[1] / "data"
+ROBOT = ROOT_DATA / "robots/planar_three.toml"
 FRAMES = 12
 
 
@@ -232,3 +233,33 @@ def test_sigint_to_live_keeps_every_final_row(tmp_path: Path, rows_before: int) 
     assert np.all(np.diff(frames) > 0) and np.all(np.isfinite(table.thetas))
     for i in range(1, 4):
         assert (out / f"tips_seg_{i}.tum").read_text().count("\n") == len(frames)
+
+
+def test_a_live_file_with_gaps_and_clamped_rows_is_read_by_evaluate_and_plot(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """What live writes (frames skipped, an angle clamped to its limit) reads back with its
+    frame numbers and flags, and evaluate and plot take it (the frames it has)."""
+    from apcc_graph.io.sequence_folder import load_sequence
+
+    truth_folder = ROOT_DATA / "sequences/planar_three"
+    truth = load_sequence(truth_folder)
+    assert truth.thetas is not None
+    out = AppendedEstimate(tmp_path / "live", 3, truth.robot.forward)
+    kept = [0, 3, 4, 9, 15, 40]
+    for f in kept:
+        clamped = np.array([f == 9, False, False])
+        out.append(f, float(truth.timestamps[f]), truth.thetas[f] + 1e-3, np.full(3, 1e-3),
+                   clamped)
+    with pytest.raises(ValueError, match="expected strictly increasing frames"):
+        out.append(40, float(truth.timestamps[40]), truth.thetas[40], np.full(3, 1e-3))
+    out.close()
+    table = load_theta_table(tmp_path / "live" / "theta.csv")
+    assert table.frame_numbers().tolist() == kept
+    assert table.clamped is not None and table.clamped[:, 0].tolist() == [f == 9 for f in kept]
+    assert not table.clamped[:, 1:].any()
+    assert main(["evaluate", str(tmp_path / "live"), "--truth", str(truth_folder)]) == 0
+    text = capsys.readouterr().out
+    assert "0.057" in text  # 1e-3 rad on every segment, on the frames it has
+    assert main(["plot", str(tmp_path / "live"), "--truth", str(truth_folder), "--out",
+                 str(tmp_path / "fig.png")]) == 0
+    assert (tmp_path / "fig.png").stat().st_size > 0
