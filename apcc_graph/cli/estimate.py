@@ -237,6 +237,7 @@ def _run_many(args: argparse.Namespace) -> str:
         raise UserError("--calibrate applies to one sequence at a time")
     folders = sequence_folders(args.sequence)
     options = {**_options(args), "progress": False}
+    _check_many_out(args.out, folders)
     if args.theta0_deg is not None:
         options["theta0"] = _theta0_list(args.theta0_deg)
     if args.psi0_deg is not None:
@@ -244,6 +245,21 @@ def _run_many(args: argparse.Namespace) -> str:
     runs = estimate_many(folders, args.out, args.method, options, workers=args.workers,
                          scheduler=args.scheduler, redo=args.force, progress=True)
     return format_runs(runs, args.out)
+
+
+def _check_many_out(out: str, folders: list[Path]) -> None:
+    """``--out`` of several sequences: writable, and no sequence's output folder (replaced
+    whole when it is estimated again) is or holds an input sequence."""
+    from apcc_graph.estimation.many import output_folder
+    from apcc_graph.io.output_folder import check_writable
+
+    check_writable(out)
+    for folder in folders:
+        target = output_folder(out, folder).resolve()
+        for given in folders:
+            if target == given.resolve() or target in given.resolve().parents:
+                raise UserError(f"{out}: the estimate of {folder} would go to {target}, "
+                                f"which holds the input {given}; choose another --out")
 
 
 def calibration_lines(given: Robot, result: Estimate,
