@@ -4,8 +4,9 @@ The Quick start's table of RMS errors is parsed from README.md (nothing here rep
 numbers): each ``--method`` row is compared with what the Quick start's own command prints with
 that method, and the Cramér-Rao bound row with what the seeded ``simulate`` command that made
 the sample (``data/sequences/README.md``) prints, both to the printed precision. The commands'
-table must list exactly the subcommands the parser has. (tests/test_repository.py checks the
-two commands' count, CI's copy of the second, the links and the Python examples.)
+table must list exactly the subcommands the parser has, and docs/usage.md's Python examples run.
+(tests/test_repository.py checks the two commands' count, CI's copy of the second, the links
+and the README's Python examples.)
 """
 
 from __future__ import annotations
@@ -146,3 +147,18 @@ def test_every_command_quoted_in_the_readme_tables_parses() -> None:
     for command in examples:
         args = parser.parse_args(shlex.split(command)[1:])
         assert callable(args.run), command
+
+
+def test_the_usage_pages_python_examples_run(tmp_path: Path, monkeypatch) -> None:
+    """Every ```python block of docs/usage.md runs as written, in order, from a folder that has
+    the repository's data/ (as tests/test_repository.py runs the README's)."""
+    text = (ROOT / "docs" / "usage.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert len(blocks) >= 4
+    (tmp_path / "data").symlink_to(ROOT / "data")
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    for block in blocks:
+        exec(compile(block, "docs/usage.md", "exec"), namespace)  # noqa: S102
+    assert (tmp_path / "angles.png").stat().st_size > 1000
+    assert len(namespace["final"]) == namespace["seq"].n_frames  # the stream's every frame
