@@ -17,9 +17,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kernel_cache import njit
 
 
 @njit(cache=True)

@@ -19,9 +19,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from apcc_graph.model.arrays import FloatArray, IntArray
+from apcc_graph.model.kernel_cache import njit
 
 MIN_DEPTH = 0.02  # as apcc_graph.factors.track_points.MIN_DEPTH (a test keeps them equal)
 

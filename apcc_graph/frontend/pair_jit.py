@@ -25,10 +25,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from apcc_graph.frontend.spatial_jit import bend_matrices, bend_terms
 from apcc_graph.model.arrays import FloatArray, IntArray
+from apcc_graph.model.kernel_cache import njit
 
 DEPENDS = "a85874ad305deb7c"
 """Digest of :mod:`~apcc_graph.frontend.spatial_jit`, whose kernels this module's cached kernels

@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from apcc_graph.frontend.pair_jit import (
     bezout_matrix,
@@ -36,6 +35,7 @@ from apcc_graph.frontend.spatial_jit import (
     refine,
 )
 from apcc_graph.model.arrays import FloatArray, IntArray
+from apcc_graph.model.kernel_cache import njit
 
 DEPENDS = "8d4d9ebb6a17cf02"
 """Digest of :mod:`~apcc_graph.frontend.pair_jit` and :mod:`~apcc_graph.frontend.spatial_jit`,

@@ -21,10 +21,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from apcc_graph.frontend import spatial_basis
 from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.kernel_cache import njit
 from apcc_graph.model.segment import Segment
 
 DEPENDS = "3c0ef2668d98d0fe"
