@@ -371,3 +371,74 @@ def test_the_chain_warns_when_a_camera_keeps_almost_no_inliers() -> None:
                       r".*may drift far"):
         apcc_graph.estimate(_sparse_sequence(None, scramble=True), method="chain",
                             theta0=theta0)
+
+
+# ---------------------------------------------------------------------------- implausible units
+def test_a_robot_file_in_millimetres_is_warned_about_by_key(sample_copy: Path) -> None:
+    from apcc_graph.io.units import UnitsWarning
+
+    path = sample_copy / "robot.toml"
+    text = path.read_text()
+    assert "length = 0.496" not in text
+    lengths = [line for line in text.splitlines() if line.startswith("length = ")]
+    mm = float(lengths[1].split("=")[1]) * 1000.0
+    path.write_text(_replace_nth(text, lengths[1], f"length = {mm!r}", 0
+                                 if lengths[0] != lengths[1] else 1))
+    with pytest.warns(UnitsWarning, match=rf"^{path}: segments\[1\].length = {mm!r} m: a "
+                      r"continuum-robot segment of more than 5 m is implausible; lengths are "
+                      rf"in metres \(if this is millimetres, write {mm / 1000:g}\)"):
+        robot = load_robot(path)
+    assert robot.segments[1].length == mm  # read as written
+
+
+def test_a_calibration_file_in_millimetres_is_warned_about_once(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import warnings
+
+    from apcc_graph.calibration.files import load_tip_measurements
+    from apcc_graph.io.units import UnitsWarning
+
+    source = (ROOT / "data" / "calibration" / "paper_example.toml").read_text()
+    mm = tmp_path / "mm.toml"
+    mm.write_text(source.replace("length = 0.496", "length = 496")
+                  .replace("tip_x = 0.3079719063693426", "tip_x = 307.9719063693426")
+                  .replace("tip_z = 0.3420374534295963", "tip_z = 342.0374534295963"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_tip_measurements(mm)
+    units = [str(w.message) for w in caught if issubclass(w.category, UnitsWarning)]
+    assert units == [f"{mm}: length = 496 m: a continuum-robot segment of more than 5 m is "
+                     "implausible; lengths are in metres (if this is millimetres, write 0.496)"]
+    only_tips = tmp_path / "tips.toml"
+    only_tips.write_text(source.replace("tip_z = 0.3420374534295963", "tip_z = 342.04"))
+    with pytest.warns(UnitsWarning, match=rf"^{only_tips}: poses\[0\].tip_z = 342.04 m: a tip "
+                      "position of more than 5 m"):
+        load_tip_measurements(only_tips)
+    assert main(["calibrate", str(mm)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("apcc-graph: warning: ") == 1 and "length = 496 m" in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("recording", ["impulse_2", "slow_free_space"])
+def test_backbone_quaternions_written_scalar_last_are_named(tmp_path: Path,
+                                                            recording: str) -> None:
+    import warnings
+
+    from apcc_graph.io.backbone_poses import load_backbone_poses
+    from apcc_graph.io.units import UnitsWarning
+
+    source = ROOT / "data" / "real_tdcr" / recording / "backbone_poses.csv"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnitsWarning)
+        load_backbone_poses(source)  # the shipped order: no warning
+    lines = source.read_text().splitlines()
+    swapped = [lines[0]]
+    for line in lines[1:]:
+        f = line.split(",")
+        swapped.append(",".join(f[:5] + [f[6], f[7], f[8], f[5]]))  # x, y, z, w
+    path = tmp_path / "backbone_poses.csv"
+    path.write_text("\n".join(swapped) + "\n")
+    with pytest.warns(UnitsWarning, match=rf"^{path}: the quaternion columns qw,qx,qy,qz look "
+                      r"written in the order x, y, z, w: .* move the w column first"):
+        load_backbone_poses(path)

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from apcc_graph.calibration.closed_form import calibrate_from_tip
 from apcc_graph.calibration.fit import ThetaFit, fit_segment, fit_thetas
 from apcc_graph.io.toml_fields import TomlTable, read_toml
+from apcc_graph.io.units import PLAUSIBLE_LENGTH_M
 from apcc_graph.model.segment import Segment
 
 CALIBRATION_FORMAT = "apcc-graph/calibration@1"
@@ -43,7 +44,7 @@ class TipMeasurements:
 def segment_fields(top: TomlTable) -> tuple[float, float | None]:
     """``length`` (metres, > 0) and the optional ``theta_max_deg`` (as radians, or None) of a
     calibration file's top table; errors name the file and the key."""
-    length = top.number("length")
+    length = top.metres("length")
     if length <= 0.0:
         raise top.error("length", f"expected a segment length > 0 (metres), got {length!r}")
     theta_max = None
@@ -70,12 +71,18 @@ def load_tip_measurements(path: str | Path) -> TipMeasurements:
     top.check_format(CALIBRATION_FORMAT)
     length, theta_max = segment_fields(top)
     positions, angles = [], []
+    odd = None  # the first pose whose position is implausibly far, warned about once
     for pose in top.tables("poses"):
         pose.check_keys(
             ("tip_x", "tip_z", "tip_angle_deg"), required=("tip_x", "tip_z", "tip_angle_deg")
         )
         positions.append((pose.number("tip_x"), pose.number("tip_z")))
         angles.append(math.radians(pose.number("tip_angle_deg")))
+        if odd is None and max(map(abs, positions[-1])) > PLAUSIBLE_LENGTH_M:
+            odd = pose
+    if odd is not None and length <= PLAUSIBLE_LENGTH_M:  # else the length was warned about
+        far = "tip_x" if abs(odd.number("tip_x")) > PLAUSIBLE_LENGTH_M else "tip_z"
+        odd.metres(far, "a tip position")
     return TipMeasurements(
         length=length,
         tip_positions=np.array(positions),

@@ -41,7 +41,7 @@ _CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "model"
 def _segment_from(table: TomlTable) -> Segment:
     table.check_keys(list(_SEGMENT_KEYS.values()) + ["camera"], required=_SEGMENT_KEYS.values())
     values = {
-        "length": table.number("length"),
+        "length": table.metres("length"),
         "k": table.number("k"),
         "delta_max": math.radians(table.number("delta_max_deg")),
         "theta_max": math.radians(table.number("theta_max_deg")),

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import math
 import sys
+import warnings
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 from apcc_graph.io.text_files import MAX_TOML_BYTES, read_small_text
+from apcc_graph.io.units import PLAUSIBLE_LENGTH_M, UnitsWarning
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -85,6 +87,17 @@ class TomlTable:
         value = float(value)
         if not math.isfinite(value):
             raise self.error(name, f"expected a finite number, got {value!r}")
+        return value
+
+    def metres(self, name: str, what: str = "a continuum-robot segment") -> float:
+        """A finite length in metres; one beyond :data:`PLAUSIBLE_LENGTH_M` is read as written
+        with a :class:`UnitsWarning` naming the file and the key (millimetres, perhaps)."""
+        value = self.number(name)
+        if abs(value) > PLAUSIBLE_LENGTH_M:
+            warnings.warn(f"{self.path}: {self.key(name)} = {self.data[name]!r} m: {what} "
+                          f"of more than {PLAUSIBLE_LENGTH_M:g} m is implausible; lengths are "
+                          f"in metres (if this is millimetres, write {value / 1000.0:g})",
+                          UnitsWarning, stacklevel=3)
         return value
 
     def integer(self, name: str) -> int:
