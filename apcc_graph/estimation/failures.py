@@ -43,20 +43,35 @@ def is_gtsam_error(error: BaseException) -> bool:
     return isinstance(error, RuntimeError | ValueError) and any(s in text for s in GTSAM_SIGNS)
 
 
+def _what_and_hint(text: str) -> tuple[str, str]:
+    """What went wrong in gtsam's message ``text``, and what to try."""
+    lower = text.lower()
+    if "indeterminant linear system" in lower or "indeterminate linear system" in lower:
+        return ("an indeterminate linear system (the images and priors do not fix the "
+                "variable)", "check the robot file's cameras (intrinsics, distortion, mounts) "
+                "and the tracks; with --method smoother try --factorization QR or a longer --lag")
+    if "variableindex" in lower:
+        return ("its variable index went inconsistent",
+                "run it again; if it repeats, try another --method")
+    return text[:200], "check the robot file and the tracks, or try another --method"
+
+
+def _near(text: str) -> str:
+    """`` near <the variable>`` for the first graph key in ``text``, or nothing."""
+    keys = [int(k) for k in _KEY.findall(text)]
+    return f" near {key_name(keys[0])}" if keys else ""
+
+
+def gtsam_cause(error: BaseException) -> str:
+    """A gtsam error in a few words, its variable decoded (e.g. ``an indeterminate linear
+    system near frame 42's bends``), for a warning that goes on."""
+    text = " ".join(str(error).split())
+    what = _what_and_hint(text)[0].split(" (")[0]
+    return what + _near(text)
+
+
 def gtsam_failure(error: BaseException) -> str:
     """A gtsam error as one line: what failed, near which variable (decoded), what to try."""
     text = " ".join(str(error).split())
-    keys = [int(k) for k in _KEY.findall(text)]
-    near = f" near {key_name(keys[0])}" if keys else ""
-    lower = text.lower()
-    if "indeterminant linear system" in lower or "indeterminate linear system" in lower:
-        what = "an indeterminate linear system (the images and priors do not fix the variable)"
-        hint = ("check the robot file's cameras (intrinsics, distortion, mounts) and the tracks"
-                "; with --method smoother try --factorization QR or a longer --lag")
-    elif "variableindex" in lower:
-        what = "its variable index went inconsistent"
-        hint = "run it again; if it repeats, try another --method"
-    else:
-        what = text[:200]
-        hint = "check the robot file and the tracks, or try another --method"
-    return f"gtsam failed{near}: {what}; {hint}"
+    what, hint = _what_and_hint(text)
+    return f"gtsam failed{_near(text)}: {what}; {hint}"

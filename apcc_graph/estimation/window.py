@@ -41,7 +41,9 @@ class RestartWarning(UserWarning):
 
 def warn_restart(frame: int, timestamp: float, error: BaseException | None) -> None:
     """Say that a smoother restarted at ``frame`` (see :class:`RestartWarning`)."""
-    cause = "" if error is None else " ".join(str(error).split())[:90]
+    from apcc_graph.estimation.failures import gtsam_cause
+
+    cause = "" if error is None else gtsam_cause(error)[:120]
     warnings.warn(f"frame {frame} ({timestamp:.3f} s): gtsam failed on the window "
                   f"({cause or 'no message'}); the smoother restarted from its last estimate "
                   "with a loose prior, so the angles may be off until the images pull them "

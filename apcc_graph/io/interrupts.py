@@ -1,12 +1,14 @@
 """Ctrl-C that is never lost: while :func:`catching_interrupts` is active, SIGINT sets a flag
 and raises ``KeyboardInterrupt``; where that exception is swallowed (Python cannot raise it out
 of a C callback, e.g. while numba compiles a kernel, which would print "Exception ignored" and
-go on), the signal is raised again so that it reaches the command at the next line of Python.
+go on), it is raised again a moment later, from a timer thread, so that it reaches the
+command's own code.
 Writers check :func:`check_interrupted` before they move a finished output into place, so an
 interrupted command never publishes its output."""
 
 from __future__ import annotations
 
+import _thread
 import signal
 import sys
 import threading
@@ -44,7 +46,8 @@ def catching_interrupts() -> Iterator[None]:
 
     def hook(unraisable: Any) -> None:
         if isinstance(unraisable.exc_value, KeyboardInterrupt):
-            signal.raise_signal(signal.SIGINT)  # again, where Python can raise it
+            # again, a moment later: from here it would only be swallowed once more
+            threading.Timer(0.05, _thread.interrupt_main).start()
             return
         previous_hook(unraisable)
 

@@ -1,0 +1,255 @@
+"""Ctrl-C and failures: an interrupted command says so in one line and exits with 130, leaving
+nothing half-written (a run over many sequences keeps the ones it finished); a gtsam failure is
+one line naming the variable it concerns; any other failure is one line, never a traceback
+(``--debug`` shows it). The bad inputs run through the installed ``apcc-graph`` in a
+subprocess, where a traceback could not hide."""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+
+from apcc_graph.cli import main
+from apcc_graph.io import load_robot, save_sequence
+from apcc_graph.io.interrupts import catching_interrupts
+from apcc_graph.simulation.simulator import simulate
+
+REPO = Path(__file__).resolve().parents[1]
+ROBOT = REPO / "data" / "robots" / "planar_three.toml"
+SAMPLE = REPO / "data" / "sequences" / "planar_three"
+CONSOLE = Path(sys.executable).parent / "apcc-graph"
+
+
+@pytest.fixture(scope="module")
+def short(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """A 12-frame simulated sequence and its true start as ``--theta0-deg``."""
+    folder = tmp_path_factory.mktemp("short") / "seq_12"
+    sim = simulate(load_robot(ROBOT), 12, noise_px=0.5, seed=12)
+    save_sequence(sim.sequence, folder)
+    return folder, "--theta0-deg=" + ",".join(f"{math.degrees(t):.4f}"
+                                              for t in sim.sequence.thetas[0])
+
+
+def _loaded(pid: int, library: str) -> bool:
+    """Whether process ``pid`` has mapped a shared library whose name holds ``library``."""
+    try:
+        return library in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+
+
+def test_sigint_to_a_batch_estimate_exits_130_in_one_line_and_writes_nothing(
+        tmp_path: Path) -> None:
+    out = tmp_path / "est"
+    proc = subprocess.Popen([sys.executable, "-m", "apcc_graph.cli", "estimate", str(SAMPLE),
+                             "--method", "batch", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # computing: gtsam is imported by the estimator only (then wait a little longer)
+    deadline = time.monotonic() + 120
+    while not _loaded(proc.pid, "gtsam") and proc.poll() is None:
+        assert time.monotonic() < deadline, "the estimate never started"
+        time.sleep(0.1)
+    time.sleep(1.5)
+    assert proc.poll() is None, "the estimate ended before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().splitlines() == ["apcc-graph: interrupted"]
+    assert stdout == ""
+    assert list(tmp_path.iterdir()) == []  # no output folder, no staging folder
+
+
+def test_an_interrupted_many_sequence_run_keeps_the_finished_ones(
+        short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    import apcc_graph.estimation.methods as methods
+
+    folder, theta0 = short
+    seqs = tmp_path / "seqs"
+    for name in ("a", "b", "c"):
+        (seqs / name).mkdir(parents=True)
+        for item in folder.rglob("*"):
+            target = seqs / name / item.relative_to(folder)
+            if item.is_dir():
+                target.mkdir(exist_ok=True)
+            else:
+                target.write_bytes(item.read_bytes())
+    real, calls = methods.estimate, []
+
+    def estimate(sequence, **kwargs):  # noqa: ANN001, ANN003, ANN202
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # Ctrl-C while the second sequence is estimated
+        return real(sequence, **kwargs)
+
+    monkeypatch.setattr(methods, "estimate", estimate)
+    out = tmp_path / "out"
+    assert main(["estimate", str(seqs), "--method", "chain", "--workers", "1", "--out",
+                 str(out), theta0]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "apcc-graph: interrupted"
+    assert sorted(p.name for p in out.iterdir()) == ["a"]  # b: nothing, not even staging
+    assert sorted(p.name for p in (out / "a").iterdir()) == [
+        "done.txt", "theta.csv", "tips_seg_1.tum", "tips_seg_2.tum", "tips_seg_3.tum"]
+
+    monkeypatch.setattr(methods, "estimate", real)  # the re-run reads "a" back
+    assert main(["estimate", str(seqs), "--method", "chain", "--workers", "1", "--out",
+                 str(out), theta0]) == 0
+    assert "2 estimated, 1 already complete, 0 failed" in capsys.readouterr().out
+
+
+def test_an_interrupted_run_that_finished_nothing_leaves_no_out(
+        short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    def estimate(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("apcc_graph.estimation.methods.estimate", estimate)
+    folder, theta0 = short
+    assert main(["estimate", str(folder.parent), "--method", "chain",  # a folder of one
+                 "--workers", "1", "--out", str(tmp_path / "out"), theta0]) == 130
+    assert list(tmp_path.iterdir()) == []
+    assert main(["estimate", str(folder), "--method", "chain", "--out",
+                 str(tmp_path / "one"), theta0]) == 130
+    assert list(tmp_path.iterdir()) == []
+    assert capsys.readouterr().err.strip().splitlines() == ["apcc-graph: interrupted"] * 2
+
+
+def test_a_ctrl_c_swallowed_by_a_c_callback_is_raised_again() -> None:
+    # numba compiles through ctypes callbacks: a KeyboardInterrupt raised inside one is
+    # printed as "Exception ignored" and lost, and the command went on to the end
+    callback = ctypes.CFUNCTYPE(None)(lambda: signal.raise_signal(signal.SIGINT))
+    with pytest.raises(KeyboardInterrupt), catching_interrupts():  # noqa: PT012
+        callback()
+        for _ in range(1000):  # the signal arrives at the next line of Python
+            time.sleep(0.001)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def _indeterminate_gtsam_error() -> RuntimeError:
+    """gtsam's own error for frame 42's vector left free (a graph without a prior)."""
+    graph = gtsam.NonlinearFactorGraph()
+    x42, x43 = gtsam.symbol("x", 42), gtsam.symbol("x", 43)
+    graph.add(gtsam.BetweenFactorVector(x42, x43, np.ones(3),
+                                        gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+    values = gtsam.Values()
+    values.insert(x42, np.zeros(3))
+    values.insert(x43, np.zeros(3))
+    with pytest.raises(RuntimeError) as caught:
+        gtsam.GaussNewtonOptimizer(graph, values).optimize()
+    return caught.value
+
+
+def test_a_gtsam_failure_is_one_line_naming_the_frame(
+        short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    error = _indeterminate_gtsam_error()
+
+    def estimate(*args: object, **kwargs: object) -> None:
+        raise error
+
+    monkeypatch.setattr("apcc_graph.estimation.methods.estimate", estimate)
+    folder, theta0 = short
+    assert main(["estimate", str(folder), "--method", "smoother", "--out",
+                 str(tmp_path / "est"), theta0]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("apcc-graph: error: gtsam failed near frame 42's bends: an "
+                             "indeterminate linear system")
+    assert "--factorization QR" in err[0] and "8646911284551352362" not in err[0]
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(RuntimeError):  # --debug shows gtsam's own
+        main(["--debug", "estimate", str(folder), "--method", "smoother", "--out",
+              str(tmp_path / "est"), theta0])
+
+
+def test_a_gtsam_failure_in_a_many_sequence_run_is_that_sequence_s_status(
+        short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    error = _indeterminate_gtsam_error()
+
+    def estimate(*args: object, **kwargs: object) -> None:
+        raise error
+
+    monkeypatch.setattr("apcc_graph.estimation.methods.estimate", estimate)
+    folder, theta0 = short
+    assert main(["estimate", str(folder.parent), "--workers", "1", "--out",
+                 str(tmp_path / "out"), theta0]) == 0
+    assert "failed: gtsam failed near frame 42's bends" in capsys.readouterr().out
+
+
+def test_an_unexpected_error_is_one_line_and_debug_shows_its_traceback(
+        short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    def estimate(*args: object, **kwargs: object) -> None:
+        raise KeyError("segment_9")
+
+    monkeypatch.setattr("apcc_graph.estimation.methods.estimate", estimate)
+    folder, theta0 = short
+    argv = ["estimate", str(folder), "--out", str(tmp_path / "est"), theta0]
+    assert main(argv) == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "apcc-graph: error: internal error: KeyError: 'segment_9' (run with --debug for the "
+        "traceback)"]
+    with pytest.raises(KeyError):
+        main(["--debug", *argv])
+
+
+def _bad_distortion(tmp_path: Path) -> Path:
+    """The sample sequence with segment 1's camera distorted by [1e6, -1e6, 0, 0]."""
+    folder = tmp_path / "distorted"
+    folder.mkdir()
+    (folder / "frames.csv").write_bytes((SAMPLE / "frames.csv").read_bytes())
+    (folder / "tracks").mkdir()
+    for tracks in (SAMPLE / "tracks").iterdir():
+        (folder / "tracks" / tracks.name).write_bytes(tracks.read_bytes())
+    robot = (SAMPLE / "robot.toml").read_text()
+    (folder / "robot.toml").write_text(robot.replace("distortion = []",
+                                                     "distortion = [1e6, -1e6, 0, 0]", 1))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def bad_inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The files of the bad-input cases."""
+    root = tmp_path_factory.mktemp("bad")
+    _bad_distortion(root)
+    (root / "file").write_text("x\n")
+    (root / "bom.toml").write_bytes(b"\xef\xbb\xbf" + ROBOT.read_bytes())
+    (root / "full").mkdir()
+    (root / "full" / "theta.csv").write_text("frame\n")
+    return root
+
+
+@pytest.mark.parametrize("argv", [
+    ["estimate", "{bad}/distorted", "--method", "smoother", "--out", "{tmp}/e"],
+    ["estimate", str(SAMPLE), "--noise-px", "nan", "--out", "{tmp}/e"],
+    ["estimate", str(SAMPLE), "--out", "{bad}/file"],
+    ["estimate", str(SAMPLE), "--out", "{bad}/file/e"],
+    ["estimate", str(SAMPLE), "--out", "/proc/self/e"],
+    ["estimate", str(SAMPLE), "--out", "{bad}/full"],
+    ["track", "--video", "a.mp4,b.mp4,c.mp4", "--robot", str(ROBOT), "--out", "{tmp}/t",
+     "--sync-tolerance", "-1"],
+    ["simulate", "--robot", "{bad}/bom.toml", "--frames", "2", "--out", "{bad}/file"],
+    ["montecarlo", "--runs", "1", "--frames", "5", "--out", "{bad}/file/mc"],
+    ["calibrate", str(REPO / "data" / "calibration" / "paper_example.toml"), "--output",
+     "{bad}/file/robot.toml"],
+    ["plot", "{bad}/full", "--output", "{tmp}/f.png"],
+    ["evaluate", "{bad}/nothing", "--truth", str(SAMPLE)],
+    ["live", "{bad}/nothing", "--robot", str(ROBOT), "--out", "{tmp}/l"],
+])
+def test_bad_inputs_through_the_console_end_in_one_line_without_a_traceback(
+        argv: list[str], bad_inputs: Path, tmp_path: Path) -> None:
+    args = [a.format(bad=bad_inputs, tmp=tmp_path) for a in argv]
+    env = {**os.environ, "COLUMNS": "200"}
+    done = subprocess.run([str(CONSOLE), *args], capture_output=True, text=True, timeout=300,
+                          env=env)
+    assert "Traceback" not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 1 and len(lines) == 1, done.stderr
+    assert lines[0].startswith("apcc-graph"), lines
+    assert not (tmp_path / "e").exists() and not list(tmp_path.glob(".*"))
