@@ -49,10 +49,11 @@ def bom_length(head: bytes, path: str | Path) -> int:
 
 
 def quote(text: str | bytes) -> str:
-    """``text`` for a message: ``repr`` of at most :data:`QUOTE_CHARS` characters, with ``...``
-    when cut."""
+    """``text`` for a message: ``repr`` of at most :data:`QUOTE_CHARS` characters (control
+    characters and undecodable bytes shown as ``?``), with ``...`` when cut."""
     if isinstance(text, bytes):
         text = text[:QUOTE_CHARS * 4].decode("utf-8", errors="replace")
+    text = "".join(c if c.isprintable() else "?" for c in text[:QUOTE_CHARS + 1])
     if len(text) <= QUOTE_CHARS:
         return repr(text)
     return repr(text[:QUOTE_CHARS]) + "..."
