@@ -262,3 +262,15 @@ def test_a_sequence_folders_tracks_are_swapped_whole(tmp_path: Path, full_disk_a
     assert "tracks/cam_3.csv: no space left on device" in capsys.readouterr().err
     assert _tree(seq) == before  # cam_1.csv and cam_2.csv not replaced either
     assert np.all([not p.name.startswith(".") for p in seq.rglob("*")])
+
+
+def test_force_never_replaces_the_current_folder(sequences, tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch,
+                                                 no_estimate, capsys) -> None:
+    (tmp_path / "work").mkdir()
+    (tmp_path / "work" / "notes.txt").write_text("mine\n")
+    monkeypatch.chdir(tmp_path / "work")
+    for out in (".", "..", str(tmp_path)):
+        assert _estimate(sequences[12], Path(out), "--force") == 1
+        assert "holds the current folder" in capsys.readouterr().err
+    assert (tmp_path / "work" / "notes.txt").read_text() == "mine\n"

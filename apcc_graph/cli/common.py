@@ -182,6 +182,10 @@ def check_output_folder(path: str | Path, force: bool,
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
         raise UserError(f"{out}: exists and is not empty; choose another --out or add --force")
     if out.exists() and force:
+        here, resolved = Path.cwd().resolve(), out.resolve()
+        if resolved in (here, *here.parents, Path.home().resolve()):
+            raise UserError(f"{out}: --force would replace this folder whole, and it holds "
+                            "the current folder (or is your home): choose a new --out")
         for given in inputs:
             if out.resolve() == Path(given).resolve() or out.resolve() in Path(
                     given).resolve().parents:

@@ -88,7 +88,7 @@ def staged_folder(destination: str | Path, replace: bool = False) -> Iterator[Pa
         OSError: the staging folder could not be made or moved into place (the message names
             ``destination``), or ``destination`` holds something and ``replace`` is not given.
     """
-    destination = Path(destination)
+    destination = Path(os.path.abspath(destination))  # "." and ".." have no name to stage
     try:
         destination.parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f".{destination.name}{STAGING}",
