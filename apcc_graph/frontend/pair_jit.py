@@ -30,7 +30,7 @@ from apcc_graph.frontend.spatial_jit import bend_matrices, bend_terms
 from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.kernel_cache import njit
 
-DEPENDS = "a85874ad305deb7c"
+DEPENDS = "0bad9c6fb126b9a6"
 """Digest of :mod:`~apcc_graph.frontend.spatial_jit`, whose kernels this module's cached kernels
 compile in (``tests/test_spatial_ransac_fast.py``).
 numba's cache checks the text of each kernel's own file only, so a kernel compiled with

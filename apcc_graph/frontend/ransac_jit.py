@@ -37,7 +37,7 @@ from apcc_graph.frontend.spatial_jit import (
 from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.kernel_cache import njit
 
-DEPENDS = "8d4d9ebb6a17cf02"
+DEPENDS = "68f2c3aeb276160a"
 """Digest of :mod:`~apcc_graph.frontend.pair_jit` and :mod:`~apcc_graph.frontend.spatial_jit`,
 whose kernels this module's cached kernels compile in (``tests/test_spatial_ransac_fast.py``).
 numba's cache checks the text of each kernel's own file only, so a kernel compiled with
