@@ -66,8 +66,8 @@ def test_theta_csv_and_tum_files(sequence, tmp_path: Path) -> None:
 
 def test_theta_csv_errors_name_the_line(tmp_path: Path) -> None:
     path = tmp_path / "theta.csv"
-    path.write_text("frame,timestamp,theta_1,sigma_1\n0,0.0,0.1,nan\n2,0.1,0.2,nan\n")
-    with pytest.raises(ValueError, match="line 3, column 'frame'"):
+    path.write_text("frame,timestamp,theta_1,sigma_1\n0,0.0,0.1,nan\n0,0.1,0.2,nan\n")
+    with pytest.raises(ValueError, match="line 3, column 'frame'"):  # frames may skip, not repeat
         load_theta_csv(path)
     path.write_text("frame,timestamp,theta_1,sigma_1\n0,0.0,nan,nan\n")
     with pytest.raises(ValueError, match="line 2, column 'theta_1'"):
