@@ -442,3 +442,30 @@ def test_backbone_quaternions_written_scalar_last_are_named(tmp_path: Path,
     with pytest.warns(UnitsWarning, match=rf"^{path}: the quaternion columns qw,qx,qy,qz look "
                       r"written in the order x, y, z, w: .* move the w column first"):
         load_backbone_poses(path)
+
+
+def _reference_scan(raw: bytes) -> tuple[bool, int | None]:
+    """What ``_scan_lines`` must answer, the simple way: whether a non-blank line follows the
+    header, and the first blank line (empty or a lone CR) that a non-blank line follows."""
+    lines = raw.split(b"\n")
+    blank = [line in (b"", b"\r") for line in lines]
+    full = [n + 1 for n, b in enumerate(blank) if not b]
+    last = max(full, default=0)
+    first_blank = next((n + 1 for n, b in enumerate(blank) if b and n > 0), None)
+    return last > 1, first_blank if first_blank is not None and first_blank < last else None
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 7, 1 << 20])
+def test_the_chunked_scan_finds_rows_and_blank_lines_across_chunk_borders(
+        tmp_path: Path, chunk: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    from apcc_graph.io import csv_table
+
+    monkeypatch.setattr(csv_table, "_CHUNK", chunk)
+    rng = np.random.default_rng(chunk)
+    pieces = [b"1,2", b"", b"\r", b"3,4\r", b" ", b"5"]
+    for case in range(60):
+        body = b"\n".join(pieces[i] for i in rng.integers(0, len(pieces), rng.integers(0, 6)))
+        raw = b"a,b\n" + body + (b"\n" if case % 2 else b"")
+        path = tmp_path / f"{case}.csv"
+        path.write_bytes(raw)
+        assert csv_table._scan_lines(path) == _reference_scan(raw), raw
