@@ -469,3 +469,23 @@ def test_the_chunked_scan_finds_rows_and_blank_lines_across_chunk_borders(
         path = tmp_path / f"{case}.csv"
         path.write_bytes(raw)
         assert csv_table._scan_lines(path) == _reference_scan(raw), raw
+
+
+def test_evaluate_compares_measured_tips_on_the_frames_an_estimate_has(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from apcc_graph.io import save_sequence
+    from apcc_graph.model.sequence import Sequence
+
+    full = load_sequence(SAMPLE).head(40)
+    tips = full.robot.forward(full.thetas, None, full.world_T_base)
+    truth = tmp_path / "truth"
+    save_sequence(Sequence(full.robot, full.timestamps, full.tracks, full.world_T_base,
+                           truth_tips=tips), truth)
+    kept = [0, 1, 5, 6, 20, 39]
+    est = _theta_file(tmp_path / "est", kept)
+    assert main(["evaluate", str(est), "--truth", str(truth)]) == 0
+    out = capsys.readouterr().out
+    assert "compared on the 6 frames the estimate has, of the truth's 40 (15.0%)" in out
+    assert "RMS over 6 frames" in out
+    rows = [line.split() for line in out.splitlines() if line.strip()[:1] in "123"]
+    assert len(rows) == 3 and all(float(r[1]) < 1e-6 for r in rows)  # each row on its own tip
