@@ -274,3 +274,41 @@ def test_force_never_replaces_the_current_folder(sequences, tmp_path: Path,
         assert _estimate(sequences[12], Path(out), "--force") == 1
         assert "holds the current folder" in capsys.readouterr().err
     assert (tmp_path / "work" / "notes.txt").read_text() == "mine\n"
+
+
+def test_a_staged_folder_appears_whole_or_not_at_all(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    from apcc_graph.io import output_folder
+    from apcc_graph.io.output_folder import staged_folder
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("old\n")
+    with pytest.raises(KeyboardInterrupt), staged_folder(out, replace=True) as staging:
+        (staging / "new.txt").write_text("new\n")
+        raise KeyboardInterrupt
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert [p.name for p in out.iterdir()] == ["old.txt"]
+
+    with pytest.raises(OSError, match="add --force"), staged_folder(out) as staging:
+        (staging / "new.txt").write_text("new\n")  # out is not empty: not replaced
+    assert [p.name for p in out.iterdir()] == ["old.txt"]
+
+    real = os.rename
+
+    def rename(source: Any, target: Any) -> None:  # the new folder cannot be moved in
+        if ".partial-" in str(source):
+            raise OSError(errno.EXDEV, os.strerror(errno.EXDEV), str(source))
+        real(source, target)
+
+    monkeypatch.setattr(output_folder.os, "rename", rename)
+    with pytest.raises(OSError), staged_folder(out, replace=True) as staging:
+        (staging / "new.txt").write_text("new\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # the old one put back
+    assert [p.name for p in out.iterdir()] == ["old.txt"]
+    monkeypatch.setattr(output_folder.os, "rename", real)
+
+    with staged_folder(out, replace=True) as staging:
+        (staging / "new.txt").write_text("new\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert [p.name for p in out.iterdir()] == ["new.txt"]

@@ -298,13 +298,21 @@ def _local_cluster(workers: int) -> Any:
     environ = {name: value for name, value in
                dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                if name != "MALLOC_TRIM_THRESHOLD_"}
-    # Ctrl-C reaches the workers too; multiprocessing's resource tracker would then list the
-    # semaphores they left at exit, a warning that is no news after the one-line interruption
+    # the workers' own log is silent: shutting a cluster down after Ctrl-C (or an error) has
+    # each one warn of every task it cancelled and log its lost scheduler with a traceback (a
+    # task's failure reaches this process as the sequence's status anyway)
+    environ["DASK_LOGGING__DISTRIBUTED"] = "critical"
+    # Ctrl-C at a terminal reaches every process of the group: the workers ignore it
+    # (dask_worker, a preload), this process shuts the cluster down; multiprocessing's resource
+    # tracker would then list the semaphores the workers left, no news after the one line
     quiet = "ignore::UserWarning:multiprocessing.resource_tracker"
     filters = [f for f in os.environ.get("PYTHONWARNINGS", "").split(",") if f]
     os.environ["PYTHONWARNINGS"] = ",".join(filters + [quiet] * (quiet not in filters))
+    preload = [*dask.config.get("distributed.worker.preload", []),
+               "apcc_graph.estimation.dask_worker"]
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ,
-                          "distributed.worker.profile.enabled": False}):
+                          "distributed.worker.profile.enabled": False,
+                          "distributed.worker.preload": preload}):
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                             dashboard_address=None)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -125,11 +126,20 @@ def _swap_in(staging: Path, destination: Path, replace: bool) -> None:
                       "(add --force to replace it)")
     old = Path(tempfile.mkdtemp(prefix=f".{destination.name}.old-", dir=destination.parent))
     aside = old / destination.name
-    os.rename(destination, aside)
+    # no Ctrl-C between the two renames (it is delivered after them)
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        os.rename(staging, destination)
-    except BaseException:
-        os.rename(aside, destination)  # put the old one back
-        old.rmdir()
-        raise
+        try:
+            os.rename(destination, aside)
+        except OSError:
+            old.rmdir()
+            raise
+        try:
+            os.rename(staging, destination)
+        except OSError:
+            os.rename(aside, destination)  # put the old one back
+            old.rmdir()
+            raise
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
     _remove(old)
