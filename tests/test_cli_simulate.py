@@ -37,8 +37,8 @@ def test_simulate_refuses_a_non_empty_folder_unless_forced(tmp_path: Path, capsy
     assert len(err) == 1 and "not empty" in err[0] and "Traceback" not in err[0]
     assert (out / "keep.txt").read_text() == "user data"
     assert not (out / "frames.csv").exists()
-    assert main(args + ["--force"]) == 0
-    assert (out / "frames.csv").exists() and (out / "keep.txt").exists()
+    assert main(args + ["--force"]) == 0  # replaced whole: nothing of the old stays
+    assert (out / "frames.csv").exists() and not (out / "keep.txt").exists()
 
 
 @pytest.mark.parametrize(
