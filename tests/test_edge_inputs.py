@@ -489,3 +489,16 @@ def test_evaluate_compares_measured_tips_on_the_frames_an_estimate_has(
     assert "RMS over 6 frames" in out
     rows = [line.split() for line in out.splitlines() if line.strip()[:1] in "123"]
     assert len(rows) == 3 and all(float(r[1]) < 1e-6 for r in rows)  # each row on its own tip
+
+
+def test_a_camera_offset_in_millimetres_is_warned_about(sample_copy: Path) -> None:
+    from apcc_graph.io.units import UnitsWarning
+
+    path = sample_copy / "robot.toml"
+    text = path.read_text()
+    start = text.index("translation = [", text.index("[segments.camera.tip_T_cam]"))
+    end = text.index("]", start) + 1
+    path.write_text(text[:start] + "translation = [0.0, 0.012, 30.0]" + text[end:])
+    with pytest.warns(UnitsWarning, match=rf"^{path}: segments\[0\].camera.tip_T_cam."
+                      r"translation\[2\] = 30.0 m: an offset of more than 5 m .*write 0.03\)"):
+        load_robot(path)

@@ -9,6 +9,7 @@ the file and the key (``segments[i].camera.fx``; indices are 0-based as in the T
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from apcc_graph.io.poses import (
     rotation_from_quaternion,
 )
 from apcc_graph.io.toml_fields import TomlTable, read_toml
+from apcc_graph.io.units import PLAUSIBLE_LENGTH_M, UnitsWarning
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
@@ -59,6 +61,13 @@ def _segment_from(table: TomlTable) -> Segment:
 def _pose_from(table: TomlTable) -> np.ndarray:
     table.check_keys(("translation", "quaternion_wxyz"))
     translation = table.numbers("translation", 3, default=[0.0, 0.0, 0.0])
+    far = [i for i, t in enumerate(translation) if abs(t) > PLAUSIBLE_LENGTH_M]
+    if far:
+        warnings.warn(f"{table.path}: {table.key('translation')}[{far[0]}] = "
+                      f"{translation[far[0]]!r} m: an offset of more than "
+                      f"{PLAUSIBLE_LENGTH_M:g} m on a continuum robot is implausible; lengths "
+                      f"are in metres (if this is millimetres, write "
+                      f"{translation[far[0]] / 1000.0:g})", UnitsWarning, stacklevel=4)
     quat = table.numbers("quaternion_wxyz", 4, default=[1.0, 0.0, 0.0, 0.0])
     norm = math.sqrt(sum(q * q for q in quat))
     if abs(norm - 1.0) > 1e-6:
@@ -143,7 +152,7 @@ def markers_from_toml(data: dict[str, Any], path: str | Path = "<robot.toml>"
     for table in top.tables("markers"):
         table.check_keys(("arclength", "backbone_T_marker"),
                          required=("arclength", "backbone_T_marker"))
-        arc = table.number("arclength")
+        arc = table.metres("arclength", "a marker's place along a continuum robot")
         if arc < 0.0:
             raise table.error("arclength", f"expected an arc length >= 0 (metres), got {arc!r}")
         if any(abs(arc - seen) < 1e-9 for seen in out):
