@@ -263,3 +263,50 @@ def test_a_live_file_with_gaps_and_clamped_rows_is_read_by_evaluate_and_plot(
     assert main(["plot", str(tmp_path / "live"), "--truth", str(truth_folder), "--out",
                  str(tmp_path / "fig.png")]) == 0
     assert (tmp_path / "fig.png").stat().st_size > 0
+
+
+def test_joint_limits_clamp_flag_and_warn_once_per_segment() -> None:
+    from apcc_graph.estimation.live_guards import LimitGuard, LiveWarning
+
+    guard = LimitGuard(np.radians([60.0, 60.0, 90.0]))
+    inside = np.radians([59.0, -60.0, 10.0])
+    same, flags = guard.clamp(3, inside, final=True)
+    assert not flags.any() and np.array_equal(same, inside) and guard.rows == 0
+    with pytest.warns(LiveWarning, match=r"frame 7: segment 1's estimate 103\.0 deg is beyond "
+                      r"its limit of 60\.0 deg") as caught:
+        clamped, flags = guard.clamp(7, np.radians([103.0, 10.0, -171.0]), final=True)
+    assert flags.tolist() == [True, False, True]
+    np.testing.assert_allclose(np.degrees(clamped), [60.0, 10.0, -90.0])
+    assert sorted(str(w.message)[:25] for w in caught) == ["live: frame 7: segment 1'",
+                                                           "live: frame 7: segment 3'"]
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        guard.clamp(8, np.radians([100.0, 0.0, 0.0]), final=True)  # segment 1 again: quiet
+        guard.clamp(9, np.radians([0.0, 300.0, 0.0]), final=False)  # a filtered one: quiet
+    assert guard.rows == 2
+
+
+def test_without_a_start_live_searches_it_in_the_first_second(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """No theta0: the first second of frames is kept, the start searched in it as estimate
+    searches it, and the smoother started there: every frame final, near the truth (the
+    straight start is 20 degrees off); the frames come from a simulated sequence's tracks."""
+    from apcc_graph.simulation.simulator import simulate
+
+    robot = load_robot(ROBOT)
+    sim = simulate(robot, 45, noise_px=0.5, outlier_fraction=0.0, seed=1)
+    truth = sim.sequence.thetas
+    assert truth is not None and np.degrees(np.abs(truth[0])).max() > 10.0
+    live = LiveEstimator(robot, realtime=False)
+    monkeypatch.setattr(live, "_track", lambda images: dict(images[-1].tracks))
+    frames = ((f, float(sim.sequence.timestamps[f]), {-1: sim.sequence.frame(f)})
+              for f in range(sim.sequence.n_frames))  # 1.5 s
+    got = list(live.run(frames))
+    final = {fr.frame: fr.thetas for e in got for fr in e.final}
+    final.update({fr.frame: fr.thetas for fr in live.finish()})
+    assert sorted(final) == list(range(45))
+    assert live.start_search is not None
+    assert live.start_search.startswith("start searched in the first 1.00 s")
+    errors = np.degrees(np.array([final[f] for f in range(45)]) - truth)
+    assert np.abs(errors).max() < 1.0, np.abs(errors).max(axis=0)

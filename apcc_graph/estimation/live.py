@@ -224,6 +224,7 @@ class LiveEstimator:
         self._index: dict[int, int] = {}  # the smoother's frame -> the source's index
         self._kept: list[tuple[int, float, dict[int, tuple[NDArray, NDArray]], float]] = []
         self._broken = False  # an exception left the smoother mid-update
+        self._window = 0  # the start search's next window (START_WINDOWS)
         self._pool = ThreadPoolExecutor(max_workers=max(len(self.trackers), 1))
 
     def run(self, frames: Iterator[Frame], stop: threading.Event | None = None
@@ -288,15 +289,15 @@ class LiveEstimator:
         from apcc_graph.estimation.start_search import FIRM_SIGMA, PRIOR_SIGMA, find_start
 
         span = self._kept[-1][1] - self._kept[0][1]
-        windows = [w for w in START_WINDOWS if span < w]
-        if windows and not ended and span + 1e-9 < windows[0]:
+        if not ended and span + 1e-9 < START_WINDOWS[self._window]:
             return False
         recording = self._recording()
         found = None
         if recording.n_frames >= 2:
             found = find_start(recording, span + 1.0, max_sigma=FIRM_SIGMA)
-            if not found.determined and windows and not ended:
-                return False  # wait for a longer window
+            if not found.determined and not ended and self._window + 1 < len(START_WINDOWS):
+                self._window += 1  # wait for a longer window
+                return False
         if found is None or not found.determined:
             why = "a single frame" if found is None else found.reason
             theta0 = np.zeros(self.robot.n_segments) if found is None else found.theta0
