@@ -253,3 +253,30 @@ def test_bad_inputs_through_the_console_end_in_one_line_without_a_traceback(
     assert done.returncode == 1 and len(lines) == 1, done.stderr
     assert lines[0].startswith("apcc-graph"), lines
     assert not (tmp_path / "e").exists() and not list(tmp_path.glob(".*"))
+
+
+def _matrix_mistakes() -> list[tuple[list[str], str]]:
+    """The mistakes matrix of tests/test_cli_matrix.py (its parameters)."""
+    import test_cli_matrix as matrix
+
+    marks = matrix.test_user_mistakes_end_in_one_line_and_exit_1.pytestmark
+    return next(m for m in marks if m.name == "parametrize").args[1]
+
+
+@pytest.fixture(scope="module")
+def estimate_dir(short, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("matrix") / "est"
+    folder, theta0 = short
+    assert main(["estimate", str(folder), "--method", "chain", "--out", str(out), theta0]) == 0
+    return out
+
+
+@pytest.mark.parametrize("argv, expected", _matrix_mistakes())
+def test_the_cli_matrix_s_mistakes_through_the_console(argv: list[str], expected: str,
+                                                       estimate_dir: Path,
+                                                       tmp_path: Path) -> None:
+    args = [a.format(tmp=tmp_path, est=estimate_dir) for a in argv]
+    done = subprocess.run([str(CONSOLE), *args], capture_output=True, text=True, timeout=300)
+    assert "Traceback" not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 1 and len(lines) == 1 and expected in lines[0], done.stderr
