@@ -13,8 +13,8 @@
 **Real time and overload.** A recording is played at its own pace (``realtime``): a frame
 *arrives* at the wall time its timestamp says, counted from the first. Every frame is tracked
 (a few milliseconds per camera), so the tracks stay as continuous as offline, unless it has
-waited more than :data:`MAX_BEHIND` while newer frames arrived (then the trackers step over
-it). A tracked frame after which a newer one has already arrived is not smoothed, unless the
+waited more than :data:`MAX_BEHIND` beyond the last smoothing while newer frames arrived (then
+the trackers step over it). A tracked frame after which a newer one has already arrived is not smoothed, unless the
 last smoothed frame is :data:`MAX_GAP` old: it is dropped from the estimate (counted), and the
 smoother takes a newer one. The lag stays bounded (never a growing queue), and the smoother
 sees a lower frame rate with the same tracks. (Dropping frames before tracking, as a first
@@ -74,9 +74,11 @@ MAX_GAP = 0.2
 frame is this old (the smoother then sees at least five frames a second; with gaps of half a
 second it took each for a pause, re-acquired, and ran 100 degrees off)."""
 MAX_BEHIND = 0.1
-"""Seconds: a frame that has waited this long while newer ones arrived is not even tracked
-(the trackers then step over it), so the lag stays bounded when tracking alone is slower
-than the frames."""
+"""Seconds: a frame that has waited this long beyond the last smoothing's duration while
+newer ones arrived is not even tracked (the trackers then step over it), so the lag stays
+bounded when tracking alone is slower than the frames. The frames that arrived during one
+smoothing are all tracked: skipping them made KLT steps of several frames under overload, and
+broken tracks sent the estimate tens of degrees off."""
 
 START_WINDOWS = (1.0, 2.0, 4.0)
 """Seconds of the first frames the unknown start is searched in, in turn, until one tells it."""
@@ -225,6 +227,7 @@ class LiveEstimator:
         self._kept: list[tuple[int, float, dict[int, tuple[NDArray, NDArray]], float]] = []
         self._broken = False  # an exception left the smoother mid-update
         self._window = 0  # the start search's next window (START_WINDOWS)
+        self._smoothing = 0.0  # seconds the last smoothed frame took
         self._pool = ThreadPoolExecutor(max_workers=max(len(self.trackers), 1))
 
     def run(self, frames: Iterator[Frame], stop: threading.Event | None = None
@@ -250,7 +253,7 @@ class LiveEstimator:
                 if arrival > self.clock():
                     self.sleep(arrival - self.clock())
                 elif (self.smoother is not None and self._waiting(pending, start)
-                      and self.clock() - arrival > MAX_BEHIND):
+                      and self.clock() - arrival > MAX_BEHIND + self._smoothing):
                     self.dropped += 1  # too far behind even to track it
                     continue
             tracks = self._track(images)
@@ -265,7 +268,10 @@ class LiveEstimator:
                 self.dropped += 1  # tracked, not smoothed: a newer frame is waiting
                 continue
             smoothed = t
-            yield self._process(index, t, tracks, arrival)
+            began = self.clock()
+            estimate = self._process(index, t, tracks, arrival)
+            self._smoothing = self.clock() - began
+            yield estimate
         if self.smoother is None and self._kept:  # a source shorter than the search needs
             self._search_start(ended=True)
             yield from self._kept_frames()
