@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from apcc_graph.io.atomic import atomic_file
+from apcc_graph.io.output_folder import check_writable
 from apcc_graph.model.arrays import rms
 from apcc_graph.model.joint_chain import apcc_joint_frames
 from apcc_graph.model.kinematics import pcc_in_plane
@@ -57,6 +58,7 @@ def check_figure_path(path: str | Path) -> str:
 
     Raises:
         ValueError: a suffix matplotlib cannot write, or a missing folder (named).
+        OSError: a folder where no file can be written, or a folder at ``path``.
     """
     from matplotlib.figure import Figure
 
@@ -68,6 +70,7 @@ def check_figure_path(path: str | Path) -> str:
                          f"{', '.join(sorted(supported))}")
     if not path.parent.is_dir():
         raise ValueError(f"{path}: the folder {path.parent} does not exist")
+    check_writable(path, folder=False)  # before the figure's data are computed
     return fmt
 
 

@@ -69,6 +69,21 @@ def test_sigint_to_a_batch_estimate_exits_130_in_one_line_and_writes_nothing(
     assert list(tmp_path.iterdir()) == []  # no output folder, no staging folder
 
 
+def test_sigint_while_the_command_loads_is_one_line_too(tmp_path: Path) -> None:
+    out = tmp_path / "est"
+    proc = subprocess.Popen([str(CONSOLE), "estimate", str(SAMPLE), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not _loaded(proc.pid, "cv2") and proc.poll() is None:  # apcc_graph.cli loading
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130
+    assert stderr.strip().splitlines() == ["apcc-graph: interrupted"]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_interrupted_many_sequence_run_keeps_the_finished_ones(
         short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
     import apcc_graph.estimation.methods as methods

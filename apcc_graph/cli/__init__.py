@@ -8,6 +8,26 @@ the options and checks they share (:mod:`~apcc_graph.cli.common`) and the entry 
 May import: every layer of apcc_graph. Nothing below imports it.
 """
 
-from apcc_graph.cli.main import build_parser, main
+import signal as _signal
+import sys as _sys
+import threading as _threading
+
+
+def _interrupted_while_starting(signum: int, frame: object) -> None:
+    """Ctrl-C while the command's modules load: one line and exit code 130, as later."""
+    print("apcc-graph: interrupted", file=_sys.stderr)
+    raise SystemExit(130)
+
+
+# the modules take a second or two to load: a Ctrl-C then is one line too, not a traceback
+_starting = _threading.current_thread() is _threading.main_thread() and (
+    _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler)
+if _starting:
+    _signal.signal(_signal.SIGINT, _interrupted_while_starting)
+try:
+    from apcc_graph.cli.main import build_parser, main
+finally:
+    if _starting:
+        _signal.signal(_signal.SIGINT, _signal.default_int_handler)
 
 __all__ = ["build_parser", "main"]
