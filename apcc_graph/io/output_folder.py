@@ -107,6 +107,8 @@ def staged_folder(destination: str | Path, replace: bool = False) -> Iterator[Pa
             # name the file as it would be in the destination, not in the staging folder
             inside = Path(exc.filename).relative_to(staging)
             raise OSError(exc.errno, exc.strerror, str(destination / inside)) from exc
+        if str(staging) in str(exc):  # a message that names a file in its own words
+            raise OSError(str(exc).replace(str(staging), str(destination))) from exc
         raise
     except BaseException:
         _remove(staging)
