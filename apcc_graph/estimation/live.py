@@ -14,15 +14,15 @@
 *arrives* at the wall time its timestamp says, counted from the first. Every frame is tracked
 (a few milliseconds per camera), so the tracks stay as continuous as offline, unless it has
 waited more than :data:`MAX_BEHIND` beyond the last smoothing while newer frames arrived (then
-the trackers step over it). A tracked frame after which a newer one has already arrived is not smoothed, unless the
-last smoothed frame is :data:`MAX_GAP` old: it is dropped from the estimate (counted), and the
-smoother takes a newer one. The lag stays bounded (never a growing queue), and the smoother
-sees a lower frame rate with the same tracks. (Dropping frames before tracking, as a first
-version did, broke the tracks: with KLT steps three frames long the estimate ran 60 to 120
-degrees off on ``apcc-graph bench live``.) A camera device delivers its newest image when
-asked (OpenCV's buffer of one), so it drops by itself. When fewer frames are smoothed than
-arrive by a margin over the first second already, a :class:`LiveWarning` says both rates
-(:class:`~apcc_graph.estimation.live_guards.RateMonitor`).
+the trackers step over it). A tracked frame after which a newer one has already arrived is not
+smoothed, unless the last smoothed frame is :data:`MAX_GAP` old: it is dropped from the
+estimate (counted), and the smoother takes a newer one. The lag stays bounded (never a
+growing queue), and the smoother sees a lower frame rate with the same tracks. (Dropping frames
+before tracking, as a first version did, broke the tracks: with KLT steps three frames long the
+estimate ran 60 to 120 degrees off on ``apcc-graph bench live``.) A camera device delivers its
+newest image when asked (OpenCV's buffer of one), so it drops by itself. When fewer frames are
+smoothed than arrive by a margin over the first second already, a :class:`LiveWarning` says
+both rates (:class:`~apcc_graph.estimation.live_guards.RateMonitor`).
 
 **Unknown start.** Without ``theta0`` the first second of tracked frames is kept, the start is
 searched in it as ``estimate`` searches it (:func:`~apcc_graph.estimation.start_search.
