@@ -310,3 +310,17 @@ def test_without_a_start_live_searches_it_in_the_first_second(
     assert live.start_search.startswith("start searched in the first 1.00 s")
     errors = np.degrees(np.array([final[f] for f in range(45)]) - truth)
     assert np.abs(errors).max() < 1.0, np.abs(errors).max(axis=0)
+
+
+def test_ctrl_c_is_deferred_once_and_a_second_one_raises() -> None:
+    import signal
+
+    from apcc_graph.estimation.live_guards import deferred_interrupts
+
+    before = signal.getsignal(signal.SIGINT)
+    with deferred_interrupts() as stop:
+        signal.raise_signal(signal.SIGINT)  # the first: a flag, no exception
+        assert stop.is_set()
+        with pytest.raises(KeyboardInterrupt):
+            signal.raise_signal(signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is before

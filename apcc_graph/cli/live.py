@@ -106,6 +106,7 @@ def run(args: argparse.Namespace) -> str:
             for fr in estimator.finish():
                 files.append(fr.frame, fr.timestamp, fr.thetas, fr.sigmas, fr.clamped)
             files.close()
+    estimator.interrupted = estimator.interrupted or stop.is_set()  # also while finishing
     wall = time.monotonic() - began
     median = 1e3 * float(np.median(latencies)) if latencies else float("nan")
     clamped = (f"; {files.clamped_rows} rows with an angle clamped to its limit (clamped_i)"

@@ -8,7 +8,7 @@
   :class:`LiveWarning` says both rates, as soon as the first window has passed.
 - :func:`deferred_interrupts`: Ctrl-C (SIGINT) only sets a flag while the loop runs, so it
   never lands inside a gtsam update (which would leave iSAM2 inconsistent and lose the window);
-  the loop stops at the next frame boundary.
+  the loop stops at the next frame boundary. A second Ctrl-C raises at once.
 """
 
 from __future__ import annotations
@@ -127,13 +127,20 @@ class RateMonitor:
 @contextmanager
 def deferred_interrupts() -> Iterator[threading.Event]:
     """While inside, SIGINT (Ctrl-C) sets the yielded event instead of raising
-    ``KeyboardInterrupt``; the caller stops at a safe point. Outside the main thread (where
-    signal handlers cannot be set) the event is never set and Ctrl-C behaves as usual."""
+    ``KeyboardInterrupt``; the caller stops at a safe point. A second Ctrl-C raises at once (a
+    source that hangs can still be left). Outside the main thread (where signal handlers
+    cannot be set) the event is never set and Ctrl-C behaves as usual."""
     event = threading.Event()
     if threading.current_thread() is not threading.main_thread():
         yield event
         return
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: event.set())
+
+    def on_sigint(signum: int, frame: object) -> None:
+        if event.is_set():
+            raise KeyboardInterrupt
+        event.set()
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
     try:
         yield event
     finally:
