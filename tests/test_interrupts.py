@@ -121,6 +121,37 @@ def test_an_interrupted_many_sequence_run_keeps_the_finished_ones(
     assert "2 estimated, 1 already complete, 0 failed" in capsys.readouterr().out
 
 
+def test_ctrl_c_at_a_terminal_stops_a_dask_cluster_in_one_line(tmp_path: Path) -> None:
+    pytest.importorskip("distributed")
+    import psutil
+
+    seqs = tmp_path / "seqs"
+    for name in ("a", "b", "c", "d"):
+        target = seqs / name
+        (target / "tracks").mkdir(parents=True)
+        for item in [*SAMPLE.glob("*.*"), *(SAMPLE / "tracks").iterdir()]:
+            (target / item.relative_to(SAMPLE)).write_bytes(item.read_bytes())
+    out = tmp_path / "out"
+    proc = subprocess.Popen([str(CONSOLE), "estimate", str(seqs), "--method", "batch",
+                             "--workers", "2", "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 180
+    while proc.poll() is None:  # both workers estimating (gtsam loaded)
+        assert time.monotonic() < deadline, "the cluster never started"
+        workers = [c.pid for c in psutil.Process(proc.pid).children(recursive=True)
+                   if "spawn" in " ".join(c.cmdline())]
+        if len([pid for pid in workers if _loaded(pid, "gtsam")]) >= 2:
+            break
+        time.sleep(0.2)
+    time.sleep(12.0)  # without the workers' preload, their tracebacks showed from here on
+    assert proc.poll() is None, "the run ended before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGINT)  # as Ctrl-C at a terminal: every process of the group
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().splitlines() == ["apcc-graph: interrupted"]
+    assert not list(tmp_path.glob("out/.*")) and not list(tmp_path.glob(".*"))
+
+
 def test_an_interrupted_run_that_finished_nothing_leaves_no_out(
         short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
     def estimate(*args: object, **kwargs: object) -> None:
