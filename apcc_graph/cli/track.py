@@ -64,7 +64,9 @@ def run(args: argparse.Namespace) -> str:
             raise UserError(f"{args.source} is a sequence folder: its tracks are written in it "
                             "(--robot, --out and --topics are for bags and videos)")
         from apcc_graph.frontend.tracking import track_sequence
+        from apcc_graph.io.output_folder import check_writable
 
+        check_writable(Path(args.source) / "tracks")  # before tracking
         written = track_sequence(args.source, force=args.force, progress=True)
         return "wrote " + ", ".join(str(p) for p in written)
     return _track_recording(args)
