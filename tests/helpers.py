@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from functools import cache
 from pathlib import Path
 
@@ -9,6 +10,20 @@ import gtsam
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_python_blocks(page: Path, folder: Path, monkeypatch) -> dict:  # noqa: ANN001
+    """Run every fenced ``python`` block of ``page`` as written, in order, in one namespace,
+    from ``folder`` (which gets a link to the repository's ``data/``, so files the examples
+    write land there); returns the namespace. Fails when the page has fewer than four blocks."""
+    blocks = re.findall(r"```python\n(.*?)```", page.read_text(encoding="utf-8"), re.S)
+    assert len(blocks) >= 4, f"{page.name}: expected at least four Python examples"
+    (folder / "data").symlink_to(ROOT / "data")
+    monkeypatch.chdir(folder)
+    namespace: dict = {}
+    for block in blocks:
+        exec(compile(block, page.name, "exec"), namespace)  # noqa: S102
+    return namespace
 
 
 def random_pose(rng: np.random.Generator, rot: float, trans: float) -> np.ndarray:

@@ -16,6 +16,7 @@ import shlex
 from pathlib import Path
 
 import pytest
+from helpers import run_python_blocks
 
 from apcc_graph.cli.main import build_parser, main
 
@@ -152,13 +153,6 @@ def test_every_command_quoted_in_the_readme_tables_parses() -> None:
 def test_the_usage_pages_python_examples_run(tmp_path: Path, monkeypatch) -> None:
     """Every ```python block of docs/usage.md runs as written, in order, from a folder that has
     the repository's data/ (as tests/test_repository.py runs the README's)."""
-    text = (ROOT / "docs" / "usage.md").read_text(encoding="utf-8")
-    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
-    assert len(blocks) >= 4
-    (tmp_path / "data").symlink_to(ROOT / "data")
-    monkeypatch.chdir(tmp_path)
-    namespace: dict = {}
-    for block in blocks:
-        exec(compile(block, "docs/usage.md", "exec"), namespace)  # noqa: S102
+    namespace = run_python_blocks(ROOT / "docs" / "usage.md", tmp_path, monkeypatch)
     assert (tmp_path / "angles.png").stat().st_size > 1000
     assert len(namespace["final"]) == namespace["seq"].n_frames  # the stream's every frame

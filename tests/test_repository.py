@@ -10,6 +10,8 @@ import sys
 import zipfile
 from pathlib import Path
 
+from helpers import run_python_blocks
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -42,13 +44,7 @@ def test_shipped_data_stays_small() -> None:
 def test_readme_python_examples_run(tmp_path: Path, monkeypatch) -> None:
     """Every ```python block of the README runs as written, in order, from a folder that has the
     repository's data/ (files the examples write land in tmp_path)."""
-    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
-    assert len(blocks) >= 4
-    (tmp_path / "data").symlink_to(ROOT / "data")
-    monkeypatch.chdir(tmp_path)
-    namespace: dict = {}
-    for block in blocks:
-        exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102
+    run_python_blocks(ROOT / "README.md", tmp_path, monkeypatch)
     assert (tmp_path / "angles.png").stat().st_size > 1000
 
 
