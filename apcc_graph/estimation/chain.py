@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
 from apcc_graph.estimation.front_end import FramePairs, chained_guess
+from apcc_graph.estimation.observation_checks import warn_few_inliers
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray
@@ -92,41 +93,10 @@ def chain_estimate(
     x0 = start_vector(sequence.robot, bending, theta0, psi0)
     x, status, inliers = chain_vectors(sequence, bending, x0, threshold_px, confidence, seed,
                                        progress)
-    _warn_few_inliers(sequence, inliers)
+    warn_few_inliers(sequence, inliers)
     return bending_estimate("chain", sequence, bending, x, None, status, inliers)
 
 
-def _warn_few_inliers(sequence: Sequence, inliers: NDArray[np.int64]) -> None:
-    """An ``ObservationWarning`` for each camera whose RANSAC kept fewer than a handful of
-    correspondences per frame pair, or less than :data:`FEW_KEPT` of them (its segment's angle
-    then drifts unseen)."""
-    import warnings
-
-    from apcc_graph.estimation.methods import FEW_TRACKS_PER_FRAME, ObservationWarning
-
-    if sequence.n_frames < 2:
-        return
-    for i in sequence.robot.camera_segments:
-        trk = sequence.tracks.get(i)
-        if trk is None or len(trk) == 0:
-            continue  # warned about before the estimate
-        seen = np.bincount(trk.frames, minlength=sequence.n_frames)
-        possible = int(np.minimum(seen[:-1], seen[1:]).sum())
-        per_pair = float(inliers[1:, i].mean())
-        kept = int(inliers[1:, i].sum()) / max(possible, 1)
-        if per_pair < FEW_TRACKS_PER_FRAME or kept < FEW_KEPT:
-            warnings.warn(f"chain: camera cam_{i + 1} (segment {i + 1}) kept {per_pair:.2g} "
-                          f"correspondences per frame pair, {100 * kept:.0f}% of what its "
-                          "tracks offer "
-                          f"(expected at least {FEW_TRACKS_PER_FRAME} and "
-                          f"{100 * FEW_KEPT:.0f}%): segment {i + 1}'s angle is barely observed "
-                          "and may drift far; check its tracks and its camera's calibration",
-                          ObservationWarning, stacklevel=4)
-
-
-FEW_KEPT = 0.2
-"""The chain warns about a camera whose RANSAC keeps less than this fraction of the
-correspondences its tracks offer (chance agreement of unrelated points is a few percent)."""
 
 
 def _base(sequence: Sequence, frame: int) -> FloatArray | None:

@@ -12,6 +12,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from apcc_graph.estimation.model_fit import ModelFit
+from apcc_graph.estimation.observation_checks import (  # noqa: F401 - part of this API
+    FEW_TRACKS_PER_FRAME,
+    ObservationWarning,
+    check_observations,
+)
 from apcc_graph.estimation.options import BatchOptions, ChainOptions, GraphOptions, Robustness
 from apcc_graph.estimation.result import Estimate, StartReport
 from apcc_graph.estimation.smoother_options import SmootherOptions
@@ -27,42 +32,6 @@ MethodOptions = ChainOptions | BatchOptions | SmootherOptions
 RECORDS: dict[str, type] = {"chain": ChainOptions, "batch": BatchOptions,
                             "smoother": SmootherOptions}
 """Each method's options record."""
-
-
-class ObservationWarning(UserWarning):
-    """A camera of the robot observed nothing in the whole sequence (its segment's angle rests
-    on the cameras further out and on the motion prior), or almost nothing (fewer than
-    :data:`FEW_TRACKS_PER_FRAME` tracks per frame, or, in the chain, inliers per frame)."""
-
-
-FEW_TRACKS_PER_FRAME = 5
-"""Fewer tracks (or the chain's RANSAC inliers) per frame than this, on average, and a camera
-is warned about: a bend rests on a handful of points then."""
-
-
-def check_observations(sequence: Sequence) -> None:
-    """Warn for each camera without a single observation; refuse a sequence without any.
-
-    Raises:
-        ValueError: no camera observed anything (e.g. ``tracks/`` empty or missing).
-    """
-    counts = {cam: 0 if sequence.tracks.get(cam) is None else len(sequence.tracks[cam])
-              for cam in sequence.robot.camera_segments}
-    if not any(counts.values()):
-        raise ValueError("the sequence has no observations: no camera has a track (tracks/ "
-                         "empty or missing? a folder of images needs `apcc-graph track` first)")
-    for cam, count in counts.items():
-        if count == 0:
-            warnings.warn(f"camera cam_{cam + 1} (segment {cam + 1}) observed nothing in the "
-                          f"whole sequence: segment {cam + 1}'s angle rests on the cameras "
-                          "further out and on the motion prior", ObservationWarning,
-                          stacklevel=3)
-        elif count < FEW_TRACKS_PER_FRAME * sequence.n_frames:
-            warnings.warn(f"camera cam_{cam + 1} (segment {cam + 1}) has {count} observations "
-                          f"in {sequence.n_frames} frames ({count / sequence.n_frames:.2g} per "
-                          f"frame; fewer than {FEW_TRACKS_PER_FRAME} per frame observe a bend "
-                          "poorly): check its tracks and its camera's calibration",
-                          ObservationWarning, stacklevel=3)
 
 
 def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None = None,
