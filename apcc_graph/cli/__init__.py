@@ -12,11 +12,13 @@ import signal as _signal
 import sys as _sys
 import threading as _threading
 
+_interrupted: list[bool] = []
+
 
 def _interrupted_while_starting(signum: int, frame: object) -> None:
-    """Ctrl-C while the command's modules load: one line and exit code 130, as later."""
-    print("apcc-graph: interrupted", file=_sys.stderr)
-    raise SystemExit(130)
+    """Ctrl-C while the command's modules load: noted, and acted on once they are loaded
+    (raised inside a module's initialisation, it would break that import with a traceback)."""
+    _interrupted.append(True)
 
 
 # the modules take a second or two to load: a Ctrl-C then is one line too, not a traceback
@@ -29,5 +31,8 @@ try:
 finally:
     if _starting:
         _signal.signal(_signal.SIGINT, _signal.default_int_handler)
+if _interrupted:
+    print("apcc-graph: interrupted", file=_sys.stderr)
+    raise SystemExit(130)
 
 __all__ = ["build_parser", "main"]

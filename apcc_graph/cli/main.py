@@ -72,27 +72,46 @@ def error_line(exc: BaseException) -> str:
     return " ".join(message.split())
 
 
+def _forget_unhandled_interrupt() -> None:
+    """Clear CPython's note that a ``KeyboardInterrupt`` went unhandled (set when one passes
+    through code run by ``PyRun_String``, as some extension modules do, even if it is caught
+    later): at exit it would kill the process by SIGINT instead of exiting with 130."""
+    import ctypes
+
+    try:
+        ctypes.c_int.in_dll(ctypes.pythonapi, "_Py_UnhandledKeyboardInterrupt").value = 0
+    except (AttributeError, ValueError, OSError):  # another interpreter: nothing to clear
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``apcc-graph``; returns the exit code: 0 done, 1 an error (one line on
     stderr), 130 interrupted (Ctrl-C; nothing half-written is left)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    debug = False
     try:
-        with warnings.catch_warnings(), catching_interrupts():
+        with warnings.catch_warnings(), catching_interrupts(final=argv is None):
             warnings.showwarning = _one_line_warning
-            result = args.run(args)
+            args = build_parser().parse_args(argv)
+            debug = args.debug
+            try:
+                result = args.run(args)
+            except Exception:
+                check_interrupted()  # Ctrl-C in compiled code can surface as another error
+                raise
             check_interrupted()  # a Ctrl-C that a C callback swallowed
             print(result)
     except KeyboardInterrupt:
-        if args.debug:
+        if debug:
             raise
         print("apcc-graph: interrupted", file=sys.stderr)
+        if argv is None:
+            _forget_unhandled_interrupt()
         return 130
     except BrokenPipeError:  # the reader of stdout went away (e.g. `| head`)
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - no second error at exit
         return 1
     except Exception as exc:  # noqa: BLE001 - every failure is one line without --debug
-        if args.debug:
+        if debug:
             raise
         print(f"apcc-graph: error: {error_line(exc)}", file=sys.stderr)
         return 1

@@ -89,6 +89,7 @@ def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
     if done.is_file() and not redo:
         return _skipped(sequence, out, method, done)
     from apcc_graph.estimation.failures import gtsam_failure, is_gtsam_error
+    from apcc_graph.io.interrupts import check_interrupted
     from apcc_graph.io.output_folder import staged_folder
 
     start = time.perf_counter()
@@ -99,6 +100,7 @@ def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
             atomic_write_text(staging / DONE, summary_csv([run]))
         return run
     except Exception as error:  # noqa: BLE001 - any failure is this sequence's status
+        check_interrupted()  # unless it came of Ctrl-C (numba then raises a SystemError)
         kind = "" if isinstance(error, ValueError | OSError) else f"{type(error).__name__}: "
         message = (gtsam_failure(error) if is_gtsam_error(error)
                    else kind + " ".join(str(error).split()))

@@ -41,6 +41,7 @@ from apcc_graph.estimation.many import (
     map_tasks,
 )
 from apcc_graph.io.atomic import atomic_write_text
+from apcc_graph.io.interrupts import check_interrupted
 from apcc_graph.io.output_folder import staged_folder
 from apcc_graph.model.arrays import FloatArray, rms
 
@@ -78,6 +79,7 @@ def run_seed(robot_file: str, frames: int, seed: int, noise_px: float, outliers:
             run = estimate_one(str(staging / "sequence"), str(staging / "estimate"), method,
                                options, True)
     except Exception as error:  # noqa: BLE001 - the seed's status, not the study's end
+        check_interrupted()  # unless it came of Ctrl-C
         failed = SequenceRun(str(sequence), str(estimate), method, 0, 0.0, (),
                              f"failed: {' '.join(str(error).split())}")
         return SeedRun(seed, failed, ())

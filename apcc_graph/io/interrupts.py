@@ -12,48 +12,91 @@ import _thread
 import signal
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 from typing import Any
 
 INTERRUPTED = threading.Event()
-"""Set by the first Ctrl-C while :func:`catching_interrupts` is active."""
+"""Set by Ctrl-C while :func:`catching_interrupts` is active (cleared when it ends)."""
 
 
 def check_interrupted() -> None:
     """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed (even where it was swallowed)."""
     if INTERRUPTED.is_set():
+        _raised[0] += 1  # delivered: a pending re-raise is no longer needed
         raise KeyboardInterrupt
+
+
+_raised = [0]  # KeyboardInterrupts raised by the handler so far
+_active = threading.Event()  # inside catching_interrupts
 
 
 def _on_sigint(signum: int, frame: FrameType | None) -> None:
     INTERRUPTED.set()
+    _raised[0] += 1
     raise KeyboardInterrupt
 
 
+def _raise_again(count: int) -> None:
+    """Interrupt the main thread again, unless an interruption was raised since the one
+    that was swallowed (it was delivered, or was swallowed and scheduled its own), or the
+    command is over."""
+    if _active.is_set() and _raised[0] == count:
+        _thread.interrupt_main()
+
+
 @contextmanager
-def catching_interrupts() -> Iterator[None]:
+def catching_interrupts(final: bool = False) -> Iterator[None]:
     """Within the block, Ctrl-C is recorded in :data:`INTERRUPTED` and a ``KeyboardInterrupt``
-    swallowed by a C callback is raised again; both are undone after it. Only the main thread
-    can install a signal handler: elsewhere the block changes nothing."""
+    swallowed by a C callback is raised again; both are undone after it. ``final``: the block
+    is the process's last work (the command line's entry point): after an interruption Ctrl-C
+    is then ignored, so that a late second delivery cannot turn the exit code 130 into death
+    by SIGINT. Only the main thread can install a signal handler: elsewhere the block changes
+    nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     INTERRUPTED.clear()
     previous_handler = signal.signal(signal.SIGINT, _on_sigint)
     previous_hook = sys.unraisablehook
+    timers: list[threading.Timer] = []
 
     def hook(unraisable: Any) -> None:
         if isinstance(unraisable.exc_value, KeyboardInterrupt):
             # again, a moment later: from here it would only be swallowed once more
-            threading.Timer(0.05, _thread.interrupt_main).start()
+            timer = threading.Timer(0.05, _raise_again, (_raised[0],))
+            timers.append(timer)
+            timer.start()
             return
         previous_hook(unraisable)
 
     sys.unraisablehook = hook
+    _active.set()
+    interrupted = False
     try:
         yield
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
+        interrupted = interrupted or INTERRUPTED.is_set()
+        _active.clear()
+        INTERRUPTED.clear()  # it speaks of this block only
+        for timer in timers:
+            timer.cancel()
+            timer.join()
+        # a re-raise already on its way is taken by a handler that does nothing, not by the
+        # previous one (which would raise outside the command)
+        signal.signal(signal.SIGINT, lambda signum, frame: None)
+        _drain()
         sys.unraisablehook = previous_hook
-        signal.signal(signal.SIGINT, previous_handler)
+        signal.signal(signal.SIGINT, signal.SIG_IGN if final and interrupted
+                      else previous_handler)
+
+
+def _drain() -> None:
+    """A few calls: the interpreter runs a pending signal handler at such points."""
+    for _ in range(3):
+        time.sleep(0)
