@@ -72,7 +72,7 @@ def test_cli_a_fraction_where_an_integer_is_expected(capsys: pytest.CaptureFixtu
     assert "'2.5' is not an integer" in one_line_error(capsys)
 
 
-def test_cli_estimate_refuses_a_folder_in_use_without_force(
+def test_cli_estimate_refuses_a_folder_in_use_without_force_and_replaces_it_whole_with(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "est"
     out.mkdir()
@@ -82,8 +82,9 @@ def test_cli_estimate_refuses_a_folder_in_use_without_force(
     assert "exists and is not empty; choose another --out or add --force" in one_line_error(
         capsys)
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
-    assert main([*args, "--force"]) == 0
-    assert (out / "theta.csv").is_file() and (out / "notes.txt").read_text() == "mine"
+    assert main([*args, "--force"]) == 0  # replaces the folder whole: nothing old stays
+    assert sorted(p.name for p in out.iterdir()) == [
+        "theta.csv", "tips_seg_1.tum", "tips_seg_2.tum", "tips_seg_3.tum"]
 
 
 def without_camera(sequence: apcc_graph.Sequence, cams: set[int]) -> apcc_graph.Sequence:
