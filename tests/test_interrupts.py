@@ -1,8 +1,8 @@
 """Ctrl-C and failures: an interrupted command says so in one line and exits with 130, leaving
 nothing half-written (a run over many sequences keeps the ones it finished); a gtsam failure is
 one line naming the variable it concerns; any other failure is one line, never a traceback
-(``--debug`` shows it). The bad inputs run through the installed ``apcc-graph`` in a
-subprocess, where a traceback could not hide."""
+(``--debug`` shows it). The CLI matrix's mistakes run through the installed ``apcc-graph`` in
+a subprocess, where a traceback could not hide (the odd inputs users met: tests/edge_matrix.py)."""
 
 from __future__ import annotations
 
@@ -282,62 +282,6 @@ def test_an_unexpected_error_is_one_line_and_debug_shows_its_traceback(
         "traceback)"]
     with pytest.raises(KeyError):
         main(["--debug", *argv])
-
-
-def _bad_distortion(tmp_path: Path) -> Path:
-    """The sample sequence with segment 1's camera distorted by [1e6, -1e6, 0, 0]."""
-    folder = tmp_path / "distorted"
-    folder.mkdir()
-    (folder / "frames.csv").write_bytes((SAMPLE / "frames.csv").read_bytes())
-    (folder / "tracks").mkdir()
-    for tracks in (SAMPLE / "tracks").iterdir():
-        (folder / "tracks" / tracks.name).write_bytes(tracks.read_bytes())
-    robot = (SAMPLE / "robot.toml").read_text()
-    (folder / "robot.toml").write_text(robot.replace("distortion = []",
-                                                     "distortion = [1e6, -1e6, 0, 0]", 1))
-    return folder
-
-
-@pytest.fixture(scope="module")
-def bad_inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The files of the bad-input cases."""
-    root = tmp_path_factory.mktemp("bad")
-    _bad_distortion(root)
-    (root / "file").write_text("x\n")
-    (root / "bom.toml").write_bytes(b"\xef\xbb\xbf" + ROBOT.read_bytes())
-    (root / "full").mkdir()
-    (root / "full" / "theta.csv").write_text("frame\n")
-    return root
-
-
-@pytest.mark.parametrize("argv", [
-    ["estimate", "{bad}/distorted", "--method", "smoother", "--out", "{tmp}/e"],
-    ["estimate", str(SAMPLE), "--noise-px", "nan", "--out", "{tmp}/e"],
-    ["estimate", str(SAMPLE), "--out", "{bad}/file"],
-    ["estimate", str(SAMPLE), "--out", "{bad}/file/e"],
-    ["estimate", str(SAMPLE), "--out", "/proc/self/e"],
-    ["estimate", str(SAMPLE), "--out", "{bad}/full"],
-    ["track", "--video", "a.mp4,b.mp4,c.mp4", "--robot", str(ROBOT), "--out", "{tmp}/t",
-     "--sync-tolerance", "-1"],
-    ["simulate", "--robot", "{bad}/bom.toml", "--frames", "2", "--out", "{bad}/file"],
-    ["montecarlo", "--runs", "1", "--frames", "5", "--out", "{bad}/file/mc"],
-    ["calibrate", str(REPO / "data" / "calibration" / "paper_example.toml"), "--output",
-     "{bad}/file/robot.toml"],
-    ["plot", "{bad}/full", "--output", "{tmp}/f.png"],
-    ["evaluate", "{bad}/nothing", "--truth", str(SAMPLE)],
-    ["live", "{bad}/nothing", "--robot", str(ROBOT), "--out", "{tmp}/l"],
-])
-def test_bad_inputs_through_the_console_end_in_one_line_without_a_traceback(
-        argv: list[str], bad_inputs: Path, tmp_path: Path) -> None:
-    args = [a.format(bad=bad_inputs, tmp=tmp_path) for a in argv]
-    env = {**os.environ, "COLUMNS": "200"}
-    done = subprocess.run([str(CONSOLE), *args], capture_output=True, text=True, timeout=300,
-                          env=env)
-    assert "Traceback" not in done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert done.returncode == 1 and len(lines) == 1, done.stderr
-    assert lines[0].startswith("apcc-graph"), lines
-    assert not (tmp_path / "e").exists() and not list(tmp_path.glob(".*"))
 
 
 def _matrix_mistakes() -> list[tuple[list[str], str]]:

@@ -213,7 +213,7 @@ def no_estimate(monkeypatch: pytest.MonkeyPatch) -> None:
 
 @pytest.mark.parametrize("out, expected", [
     ("{file}/est", "is a file, not a folder"),
-    ("{file}", "is a file, not a folder"),
+    ("{file}", "is a file, expected a folder"),
     ("/proc/self/est", "no new file can be made in /proc/self"),
 ])
 def test_an_unwritable_out_is_refused_before_computing(out: str, expected: str, sequences,

@@ -179,7 +179,10 @@ def check_output_folder(path: str | Path, force: bool,
     from apcc_graph.io.output_folder import check_writable
 
     out = Path(path)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not force:
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: is a file, expected a folder to write into; choose another "
+                        "--out")
+    if out.exists() and any(out.iterdir()) and not force:
         raise UserError(f"{out}: exists and is not empty; choose another --out or add --force")
     if out.exists() and force:
         here, resolved = Path.cwd().resolve(), out.resolve()
