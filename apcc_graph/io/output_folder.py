@@ -52,7 +52,7 @@ def check_writable(path: str | Path, folder: bool = True) -> Path:
     """
     path = Path(path)
     if folder and path.exists() and not path.is_dir():
-        raise OSError(f"{path}: is a file, not a folder")
+        raise OSError(f"{path}: is a file, expected a folder to write into")
     if not folder and path.is_dir():
         raise OSError(f"{path}: is a folder, not a file")
     parent = _nearest_existing(path.parent)
