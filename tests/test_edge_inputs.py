@@ -373,6 +373,30 @@ def test_the_chain_warns_when_a_camera_keeps_almost_no_inliers() -> None:
                             theta0=theta0)
 
 
+def test_a_segment_standing_still_is_not_warned_about() -> None:
+    """Frame pairs where a segment did not move (``no-motion``) keep no inliers by nature:
+    only the pairs the RANSAC solved are judged."""
+    import warnings
+
+    from apcc_graph.estimation.observation_checks import ObservationWarning, warn_few_inliers
+
+    seq = load_sequence(SAMPLE)
+    n, s = seq.n_frames, seq.robot.n_segments
+    inliers = np.full((n, s), 50, dtype=np.int64)
+    inliers[:, 0] = 0
+    status = np.full((n, s), "ok", dtype="<U24")
+    status[0] = "initial"
+    status[:, 0] = "no-motion"
+    status[3, 0] = "ok"  # one solved pair of segment 1, with its inliers
+    inliers[3, 0] = 60
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ObservationWarning)
+        warn_few_inliers(seq, inliers, status)
+    status[:, 0] = "ok"  # the same zeros where the RANSAC had to solve: warned
+    with pytest.warns(ObservationWarning, match=r"chain: camera cam_1 \(segment 1\) kept"):
+        warn_few_inliers(seq, inliers, status)
+
+
 # ---------------------------------------------------------------------------- implausible units
 def test_a_robot_file_in_millimetres_is_warned_about_by_key(sample_copy: Path) -> None:
     from apcc_graph.io.units import UnitsWarning

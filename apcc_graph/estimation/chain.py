@@ -93,10 +93,8 @@ def chain_estimate(
     x0 = start_vector(sequence.robot, bending, theta0, psi0)
     x, status, inliers = chain_vectors(sequence, bending, x0, threshold_px, confidence, seed,
                                        progress)
-    warn_few_inliers(sequence, inliers)
+    warn_few_inliers(sequence, inliers, status)
     return bending_estimate("chain", sequence, bending, x, None, status, inliers)
-
-
 
 
 def _base(sequence: Sequence, frame: int) -> FloatArray | None:

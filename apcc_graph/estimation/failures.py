@@ -10,9 +10,10 @@ import gtsam
 
 GTSAM_SIGNS = ("indeterminant linear system", "indeterminate linear system", "variableindex",
                "cheirality", "key does not exist", "valueskeydoesnotexist",
-               "valuesincorrecttype", "not positive definite", "gtsam")
+               "valuesincorrecttype", "not positive definite")
 """Phrases that mark an exception's message as gtsam's (gtsam raises plain ``RuntimeError``
-and ``ValueError``)."""
+and ``ValueError``). The word "gtsam" alone is not one: the library's own messages name
+gtsam too, and must reach the user as they are."""
 
 _KEY = re.compile(r"\b\d{15,20}\b")
 _SEGMENTS_PER_FRAME = 64  # as apcc_graph.estimation.pose_batch.MAX_SEGMENTS

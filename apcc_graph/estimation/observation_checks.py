@@ -49,20 +49,34 @@ def check_observations(sequence: Sequence) -> None:
                           ObservationWarning, stacklevel=3)
 
 
-def warn_few_inliers(sequence: Sequence, inliers: NDArray[np.int64]) -> None:
+UNJUDGED = ("no-motion", "no-camera", "initial")
+"""Chain statuses of a frame pair that say nothing of a camera's tracks: its segment did not
+move (no parallax to solve from), no camera, or no pair at all."""
+
+
+def warn_few_inliers(sequence: Sequence, inliers: NDArray[np.int64],
+                     status: NDArray[np.str_]) -> None:
     """An ``ObservationWarning`` for each camera whose RANSAC kept fewer than a handful of
     correspondences per frame pair, or less than :data:`FEW_KEPT` of them (its segment's angle
-    then drifts unseen)."""
+    then drifts unseen). Only the frame pairs the RANSAC was asked to solve count: a segment
+    standing still (status ``no-motion``) keeps no inliers without anything being wrong.
+
+    Args:
+        sequence: the sequence the chain estimated.
+        inliers: ``(F, S)`` RANSAC inliers of each frame's pair with the previous frame.
+        status: ``(F, S)`` the chain's status of each (module ``apcc_graph.estimation.chain``).
+    """
     if sequence.n_frames < 2:
         return
     for i in sequence.robot.camera_segments:
         trk = sequence.tracks.get(i)
-        if trk is None or len(trk) == 0:
-            continue  # warned about before the estimate
+        solved = ~np.isin(status[1:, i], UNJUDGED)
+        if trk is None or len(trk) == 0 or not solved.any():
+            continue  # warned about before the estimate, or nothing to judge
         seen = np.bincount(trk.frames, minlength=sequence.n_frames)
-        possible = int(np.minimum(seen[:-1], seen[1:]).sum())
-        per_pair = float(inliers[1:, i].mean())
-        kept = int(inliers[1:, i].sum()) / max(possible, 1)
+        possible = int(np.minimum(seen[:-1], seen[1:])[solved].sum())
+        per_pair = float(inliers[1:, i][solved].mean())
+        kept = int(inliers[1:, i][solved].sum()) / max(possible, 1)
         if per_pair < FEW_TRACKS_PER_FRAME or kept < FEW_KEPT:
             warnings.warn(f"chain: camera cam_{i + 1} (segment {i + 1}) kept {per_pair:.2g} "
                           f"correspondences per frame pair, {100 * kept:.0f}% of what its "
