@@ -128,8 +128,8 @@ class _FullDisk:
 @pytest.fixture
 def full_disk_at(monkeypatch: pytest.MonkeyPatch) -> Any:
     """``full_disk_at("tips_seg_2")``: every file written whose name holds that text fails
-    with ENOSPC (at its first write, as the issue's full disk did after theta.csv and
-    tips_seg_1.tum)."""
+    with ENOSPC at its first write (a disk that fills up after theta.csv and tips_seg_1.tum
+    were written)."""
 
     def install(fragment: str) -> None:
         real = os.fdopen

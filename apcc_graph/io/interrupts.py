@@ -100,3 +100,31 @@ def _drain() -> None:
     """A few calls: the interpreter runs a pending signal handler at such points."""
     for _ in range(3):
         time.sleep(0)
+
+
+@contextmanager
+def deferring_interrupts() -> Iterator[None]:
+    """Ctrl-C held back for the block: a SIGINT that arrives within it is only recorded (in
+    :data:`INTERRUPTED` too, when :func:`catching_interrupts` is active) and raised as
+    ``KeyboardInterrupt`` once the block is over, so that steps which must happen together
+    (two renames) all happen. A Python-level handler, unlike a blocked signal mask, also holds
+    back the SIGINT that the kernel hands to another thread (a BLAS thread, say). Only the main
+    thread can install a handler: elsewhere the block changes nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def record(signum: int, frame: FrameType | None) -> None:
+        received.append(signum)
+        if _active.is_set():
+            INTERRUPTED.set()
+            _raised[0] += 1  # a swallowed interruption's re-raise lands here: no more needed
+
+    previous = signal.signal(signal.SIGINT, record)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received:
+            raise KeyboardInterrupt

@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from apcc_graph.io.atomic import folder_mode, write_error
-from apcc_graph.io.interrupts import check_interrupted
+from apcc_graph.io.interrupts import check_interrupted, deferring_interrupts
 
 STAGING = ".partial-"
 """What the name of a staging folder holds (``.NAME.partial-XXXX``)."""
@@ -128,9 +127,8 @@ def _swap_in(staging: Path, destination: Path, replace: bool) -> None:
                       "(add --force to replace it)")
     old = Path(tempfile.mkdtemp(prefix=f".{destination.name}.old-", dir=destination.parent))
     aside = old / destination.name
-    # no Ctrl-C between the two renames (it is delivered after them)
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
+    # Ctrl-C (in any thread) is held back until both renames are done and the old one is gone
+    with deferring_interrupts():
         try:
             os.rename(destination, aside)
         except OSError:
@@ -142,6 +140,4 @@ def _swap_in(staging: Path, destination: Path, replace: bool) -> None:
             os.rename(aside, destination)  # put the old one back
             old.rmdir()
             raise
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
-    _remove(old)
+        _remove(old)

@@ -1,0 +1,60 @@
+"""Output folders at their edges: Ctrl-C in the middle of swapping an old output for a new
+one, an existing empty folder (or a symlink to one) as the destination, and a destination whose
+parent cannot be written."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from apcc_graph.io import output_folder
+from apcc_graph.io.output_folder import staged_folder
+
+
+class _NativeThread(threading.Thread):
+    """A thread started before the swap (as BLAS starts its threads early, with no signal
+    blocked) that, once told, takes a SIGINT: the main thread's signal mask does not hold it
+    back, and Python runs its handler in the main thread at the next chance."""
+
+    def __init__(self) -> None:
+        super().__init__(daemon=True)
+        self.go, self.sent = threading.Event(), threading.Event()
+
+    def run(self) -> None:
+        self.go.wait()
+        signal.raise_signal(signal.SIGINT)
+        self.sent.set()
+
+    def interrupt(self) -> None:
+        self.go.set()
+        self.sent.wait(timeout=30.0)
+
+
+def test_ctrl_c_between_the_two_renames_leaves_one_output_whole(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("old\n")
+    real = os.rename
+    calls: list[Any] = []
+    native = _NativeThread()
+    native.start()
+
+    def rename(source: Any, target: Any) -> None:
+        real(source, target)
+        calls.append(source)
+        if len(calls) == 1:  # the old output has just been moved aside
+            native.interrupt()
+
+    monkeypatch.setattr(output_folder.os, "rename", rename)
+    with pytest.raises(KeyboardInterrupt), staged_folder(out, replace=True) as staging:
+        (staging / "new.txt").write_text("new\n")
+    assert len(calls) == 2  # both renames were done before the interruption was raised
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no .old-, no staging
+    assert [p.name for p in out.iterdir()] in (["new.txt"], ["old.txt"])
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
