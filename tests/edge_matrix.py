@@ -80,13 +80,18 @@ def _few_tracks(w: Path) -> None:
     path.write_text("\n".join([header] + [r for r in rows if r.split(",")[1] in ids]) + "\n")
 
 
+OFFSET_RAD = 0.01
+"""What the estimates of the timestamp cases add to the true angles (0.573 deg)."""
+
+
 def _theta_file(folder: Path, frames: list[int], dt: float) -> None:
-    """A theta.csv of the sample's true angles at ``frames``, stamped every ``dt`` s."""
+    """A theta.csv of the sample's true angles plus :data:`OFFSET_RAD` at ``frames``, stamped
+    every ``dt`` s."""
     truth = (SAMPLE / "frames.csv").read_text().splitlines()[1:]
     folder.mkdir()
     lines = ["frame,timestamp,theta_1,theta_2,theta_3,sigma_1,sigma_2,sigma_3"]
     for f in frames:
-        angles = truth[f].split(",")[2:5]
+        angles = [repr(float(a) + OFFSET_RAD) for a in truth[f].split(",")[2:5]]
         lines.append(",".join([str(f), repr(f * dt), *angles, "0.001", "0.001", "0.001"]))
     (folder / "theta.csv").write_text("\n".join(lines) + "\n")
 
@@ -152,7 +157,19 @@ def _rows(path: Path, n: int) -> str | None:
     return None if rows == n else f"{path.name} has {rows} rows, expected {n}"
 
 
-def _estimate_whole(w: Path) -> str | None:
+def _matched_by_frame(w: Path, stdout: str) -> str | None:
+    """``evaluate`` of the estimate with gaps: its 7 rows compared with their own frames (every
+    error then the offset; compared by position they would not be)."""
+    rms = next((line.split()[2:] for line in stdout.splitlines() if line.startswith("RMS (deg)")),
+               None)
+    if "compared on the 7 frames the estimate has, of the truth's 200" not in stdout:
+        return "no coverage line"
+    if rms != ["0.5730"] * 3:
+        return f"RMS {rms}, expected 0.5730 deg each (the rows' own frames)"
+    return None
+
+
+def _estimate_whole(w: Path, stdout: str) -> str | None:
     for name in ("theta.csv", "tips_seg_1.tum", "tips_seg_2.tum", "tips_seg_3.tum"):
         problem = _rows(w / "e" / name, 200 if name == "theta.csv" else 199)
         if problem:
@@ -165,7 +182,8 @@ class Case:
     """One input at the edge: the command (``{w}`` is the case's own folder, ``{sample}`` the
     shipped sample, ``{robot}`` its robot, ``{data}`` the data folder), what should happen,
     what the message must contain, the output the command would write, how to make the
-    case's files, and, for accepted cases, a check of the output (``None`` when whole)."""
+    case's files, and, for accepted cases, a check of the output given the case's folder and
+    what the command printed (``None`` when whole)."""
 
     name: str
     argv: tuple[str, ...]
@@ -173,7 +191,7 @@ class Case:
     needle: str = ""
     out: str | None = None
     make: Callable[[Path], None] | None = None
-    check: Callable[[Path], str | None] | None = field(default=None, compare=False)
+    check: Callable[[Path, str], str | None] | None = field(default=None, compare=False)
 
 
 EST = ("estimate", "{sample}", "--method", "chain", THETA0)
@@ -231,15 +249,16 @@ CASES: tuple[Case, ...] = (
          ("plot", "{w}/est", "--truth", "{sample}", "--output", "{w}/f.png"),
          "refused", "frame rate", "{w}/f.png", _other_rate),
     Case("evaluate an estimate with skipped frames",
-         ("evaluate", "{w}/est", "--truth", "{sample}"), "accepted", make=_gaps),
+         ("evaluate", "{w}/est", "--truth", "{sample}"), "accepted", make=_gaps,
+         check=_matched_by_frame),
     Case("plot an estimate with skipped frames",
          ("plot", "{w}/est", "--truth", "{sample}", "--output", "{w}/f.png"), "accepted",
          out="{w}/f.png", make=_gaps,
-         check=lambda w: None if (w / "f.png").stat().st_size > 1000 else "empty figure"),
+         check=lambda w, _: None if (w / "f.png").stat().st_size > 1000 else "empty figure"),
     Case("robot.toml with a byte-order mark",
          ("simulate", "--robot", "{w}/robot.toml", "--frames", "3", "--out", "{w}/s"),
          "accepted", out="{w}/s", make=_bom_robot,
-         check=lambda w: _rows(w / "s" / "frames.csv", 3)),
+         check=lambda w, _: _rows(w / "s" / "frames.csv", 3)),
     Case("robot.toml in millimetres",
          ("simulate", "--robot", "{w}/robot.toml", "--frames", "3", "--out", "{w}/s"),
          "warned", "length", "{w}/s", _mm_robot),
@@ -314,7 +333,7 @@ def run_case(case: Case, work: Path, timeout: float = 600) -> Outcome:
         # nothing written, nothing of the user's changed (also where --out is outside work)
         if _snapshot(work) != before or (out is not None and not existed and out.exists()):
             problems.append("half-written")
-    elif case.check and (problem := case.check(work)):
+    elif case.check and (problem := case.check(work, done.stdout)):
         problems.append(f"half-written: {problem}")
     if case.expect == "refused":
         if done.returncode != 1 or len(lines) != 1 or not named:
