@@ -39,8 +39,11 @@ flagged (``LiveFrame.clamped``), with a :class:`LiveWarning` naming segment and 
 **Stopping.** ``run(frames, stop=event)`` ends at the next frame boundary once ``event`` is
 set (:func:`~apcc_graph.estimation.live_guards.deferred_interrupts` sets it on Ctrl-C), so an
 interrupt never lands inside a gtsam update; :meth:`LiveEstimator.finish` then smooths the
-window. If an exception did leave the smoother mid-update, ``finish`` gives nothing rather than
-touch the inconsistent solver (the rows already final were given with the estimates).
+window. Stopped while the start is still searched, ``run`` first searches it in the frames kept
+so far (as for a source shorter than the search: a :class:`LiveWarning` when they do not tell
+it) and smooths them, so their estimates are given too. If an exception did leave the
+smoother mid-update, ``finish`` gives nothing rather than touch the inconsistent solver (the
+rows already final were given with the estimates).
 """
 
 from __future__ import annotations
@@ -242,7 +245,7 @@ class LiveEstimator:
         while pending is not None:
             if stop is not None and stop.is_set():
                 self.interrupted = True
-                return
+                break  # frames kept for the start search are still searched and smoothed
             index, t, images = pending
             start = start or (self.clock(), t)
             arrival = start[0] + (t - start[1])
@@ -272,7 +275,7 @@ class LiveEstimator:
             estimate = self._process(index, t, tracks, arrival)
             self._smoothing = self.clock() - began
             yield estimate
-        if self.smoother is None and self._kept:  # a source shorter than the search needs
+        if self.smoother is None and self._kept:  # a source shorter than the search, or stopped
             self._search_start(ended=True)
             yield from self._kept_frames()
 
