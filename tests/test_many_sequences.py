@@ -68,15 +68,34 @@ def test_a_rerun_skips_complete_outputs_and_redoes_the_rest(recordings: Path,
     out = tmp_path / "out"
     first = estimate_many(folders, out, "chain", {"theta0": np.zeros(3)}, workers=1)
     assert [r.status for r in first] == ["ok", "ok"]
-    # a run killed while writing seq_2: its outputs never got their completion mark
+    # seq_2's folder without its completion mark is not this tool's: the user's notes
     (out / "seq_2" / DONE).unlink()
-    (out / "seq_2" / "theta.csv").write_text("half")
+    (out / "seq_2" / "theta.csv").unlink()
+    (out / "seq_2" / "notes.txt").write_text("mine\n")
     again = estimate_many(folders, out, "chain", {"theta0": np.zeros(3)}, workers=1)
-    assert [r.status for r in again] == ["skipped", "ok"]
+    assert [r.status for r in again] == ["skipped", again[1].status]
+    assert again[1].status.startswith("failed: ") and "add --force" in again[1].status
     assert again[0].rms == pytest.approx(first[0].rms, rel=1e-6)
-    assert (out / "seq_2" / "theta.csv").read_text().startswith("frame,timestamp")
+    assert (out / "seq_2" / "notes.txt").read_text() == "mine\n"  # kept without redo
+    assert not (out / "seq_2" / "theta.csv").exists()
     redo = estimate_many(folders, out, "chain", {"theta0": np.zeros(3)}, workers=1, redo=True)
     assert [r.status for r in redo] == ["ok", "ok"]
+    assert (out / "seq_2" / "theta.csv").read_text().startswith("frame,timestamp")
+    assert not (out / "seq_2" / "notes.txt").exists()  # replaced whole, as --force says
+
+
+def test_force_never_replaces_the_current_folder_as_a_sequences_output(
+        recordings: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "runs"
+    (out / "seq_1").mkdir(parents=True)
+    (out / "seq_1" / "notes.txt").write_text("mine\n")
+    monkeypatch.chdir(out / "seq_1")
+    assert main(["estimate", str(recordings / "seq_1"), str(recordings / "seq_2"),
+                 "--method", "chain", "--out", str(out), "--workers", "1", "--force"]) == 1
+    assert "holds the current folder" in capsys.readouterr().err
+    assert (out / "seq_1" / "notes.txt").read_text() == "mine\n"
+    assert sorted(p.name for p in out.iterdir()) == ["seq_1"]  # nothing computed
 
 
 def test_the_command_line_runs_a_parent_folder(recordings: Path, tmp_path: Path,

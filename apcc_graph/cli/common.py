@@ -176,7 +176,7 @@ def check_output_folder(path: str | Path, force: bool,
     of every command that writes a folder), and writable; checked before any computing. With
     ``--force`` it is replaced whole when the new output is complete, so it must not be (or
     hold) one of the command's ``inputs``."""
-    from apcc_graph.io.output_folder import check_writable
+    from apcc_graph.io.output_folder import check_writable, replace_refusal
 
     out = Path(path)
     if out.exists() and not out.is_dir():
@@ -184,16 +184,9 @@ def check_output_folder(path: str | Path, force: bool,
                         "--out")
     if out.exists() and any(out.iterdir()) and not force:
         raise UserError(f"{out}: exists and is not empty; choose another --out or add --force")
-    if out.exists() and force:
-        here, resolved = Path.cwd().resolve(), out.resolve()
-        if resolved in (here, *here.parents, Path.home().resolve()):
-            raise UserError(f"{out}: --force would replace this folder whole, and it holds "
-                            "the current folder (or is your home): choose a new --out")
-        for given in inputs:
-            if out.resolve() == Path(given).resolve() or out.resolve() in Path(
-                    given).resolve().parents:
-                raise UserError(f"{out}: holds the input {given}; --force would replace it "
-                                "with the output: choose another --out")
+    refusal = replace_refusal(out, inputs) if out.exists() and force else None
+    if refusal is not None:
+        raise UserError(f"{out}: {refusal}: choose another --out")
     check_writable(out, folder=True)
     return out
 

@@ -104,7 +104,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     many = est.add_argument_group(
         "many sequences", "with several sequences, each goes to --out/<name>/ and --out gets\n"
         "summary.csv; a re-run skips sequences whose outputs are complete (--force redoes\n"
-        "them); a sequence that fails is reported and does not stop the others")
+        "them); an --out/<name>/ that holds anything else is that sequence's failure\n"
+        "(--force replaces it whole); a sequence that fails is reported and does not stop\n"
+        "the others")
     add_dask_options(many)
     est.set_defaults(run=run)
 
@@ -237,7 +239,7 @@ def _run_many(args: argparse.Namespace) -> str:
         raise UserError("--calibrate applies to one sequence at a time")
     folders = sequence_folders(args.sequence)
     options = {**_options(args), "progress": False}
-    _check_many_out(args.out, folders)
+    _check_many_out(args.out, folders, args.force)
     if args.theta0_deg is not None:
         options["theta0"] = _theta0_list(args.theta0_deg)
     if args.psi0_deg is not None:
@@ -247,15 +249,19 @@ def _run_many(args: argparse.Namespace) -> str:
     return format_runs(runs, args.out)
 
 
-def _check_many_out(out: str, folders: list[Path]) -> None:
+def _check_many_out(out: str, folders: list[Path], force: bool) -> None:
     """``--out`` of several sequences: writable, and no sequence's output folder (replaced
-    whole when it is estimated again) is or holds an input sequence."""
+    whole when it is estimated again) is or holds an input sequence, nor, with ``--force``,
+    the current folder or the home folder."""
     from apcc_graph.estimation.many import output_folder
-    from apcc_graph.io.output_folder import check_writable
+    from apcc_graph.io.output_folder import check_writable, replace_refusal
 
     check_writable(out)
     for folder in folders:
         target = output_folder(out, folder).resolve()
+        refusal = replace_refusal(target, folders) if force and target.exists() else None
+        if refusal is not None:
+            raise UserError(f"{target}: {refusal}: choose another --out")
         for given in folders:
             if target == given.resolve() or target in given.resolve().parents:
                 raise UserError(f"{out}: the estimate of {folder} would go to {target}, "

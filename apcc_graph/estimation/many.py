@@ -81,7 +81,9 @@ def output_folder(out_root: str | Path, sequence: str | Path) -> Path:
 def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
                  redo: bool = False) -> SequenceRun:
     """Load, estimate and write one sequence; never raises for a bad sequence (the error is
-    its status). Skips it when ``out`` already holds complete outputs, unless ``redo``.
+    its status). Skips it when ``out`` already holds complete outputs, unless ``redo``; any
+    other non-empty ``out`` is replaced only with ``redo`` (and never when it is or holds the
+    current folder, the home folder or ``sequence``), else it is the sequence's failure.
 
     ``options["theta0"] = "truth"`` starts each sequence at its ground-truth first frame: the
     protocol of the benchmarks on simulated sequences, never for real recordings."""
@@ -90,9 +92,14 @@ def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
         return _skipped(sequence, out, method, done)
     from apcc_graph.estimation.failures import gtsam_failure, is_gtsam_error
     from apcc_graph.io.interrupts import check_interrupted
-    from apcc_graph.io.output_folder import staged_folder
+    from apcc_graph.io.output_folder import replace_refusal, staged_folder
 
     start = time.perf_counter()
+    existing = Path(out).is_dir() and any(Path(out).iterdir())
+    refusal = (replace_refusal(out, [sequence]) if redo
+               else "exists and is not empty; add --force to replace it")
+    if existing and refusal is not None:  # the user's own folder, not a run's outputs
+        return SequenceRun(sequence, out, method, 0, 0.0, (), f"failed: {out}: {refusal}")
     try:
         with threadpool_limits(limits=1, user_api="blas"), \
                 staged_folder(out, replace=True) as staging:

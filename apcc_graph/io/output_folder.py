@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -66,6 +66,21 @@ def check_writable(path: str | Path, folder: bool = True) -> Path:
         raise OSError(f"{path}: cannot be written: no new file can be made in {parent} "
                       f"({reason[:1].lower() + reason[1:]})") from None
     return path
+
+
+def replace_refusal(path: str | Path, inputs: Sequence[str | Path] = ()) -> str | None:
+    """Why the existing folder ``path`` must not be replaced whole (``--force``), or ``None``
+    when it may: it is or holds the current folder, is the home folder, or is or holds one of
+    ``inputs`` (a replaced folder is deleted). The message follows ``path``'s name."""
+    resolved, here = Path(path).resolve(), Path.cwd().resolve()
+    if resolved in (here, *here.parents, Path.home().resolve()):
+        return ("--force would replace this folder whole, and it holds the current folder "
+                "(or is your home)")
+    for given in inputs:
+        source = Path(given).resolve()
+        if resolved == source or resolved in source.parents:
+            return f"holds the input {given}; --force would replace it with the output"
+    return None
 
 
 def _remove(path: Path) -> None:
