@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.io.text_files import MAX_LINE_BYTES, QUOTE_CHARS, bom_length, quote
+from apcc_graph.io.text_files import MAX_LINE_BYTES, QUOTE_CHARS, bom_length, quote, read_start
 from apcc_graph.model.arrays import FloatArray
 
 _CHUNK = 1 << 20
@@ -75,13 +75,7 @@ def read_header(path: Path) -> list[str]:
     A UTF-8 byte-order mark is dropped; a UTF-16/32 one, or a first line longer than
     :data:`~apcc_graph.io.text_files.MAX_LINE_BYTES`, is refused (only that much is read).
     """
-    try:
-        with path.open("rb") as fh:
-            raw = fh.readline(MAX_LINE_BYTES + 1)
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ValueError(f"{path}: is a folder, expected a CSV file") from None
+    raw = read_start(path, MAX_LINE_BYTES + 1, "a CSV file", line=True)
     raw = raw[bom_length(raw[:4], path):]
     if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
         raise _long_line(path, 1, raw)

@@ -48,6 +48,25 @@ def bom_length(head: bytes, path: str | Path) -> int:
     return 0
 
 
+def read_start(path: Path, size: int, what: str, line: bool = False) -> bytes:
+    """The first ``size`` bytes of the file ``path`` (with ``line``, of its first line), read
+    without ever reading more.
+
+    Raises:
+        ValueError: no such file, a folder, or unreadable; the message names the file and says
+            it should be ``what``.
+    """
+    try:
+        with path.open("rb") as fh:
+            return fh.readline(size) if line else fh.read(size)
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: is a folder, expected {what}") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+
+
 def quote(text: str | bytes) -> str:
     """``text`` for a message: ``repr`` of at most :data:`QUOTE_CHARS` characters (control
     characters and undecodable bytes shown as ``?``), with ``...`` when cut."""
@@ -72,15 +91,7 @@ def read_small_text(path: str | Path, limit: int, what: str) -> str:
             byte-order mark or text that is not UTF-8; the message names the file.
     """
     path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            raw = fh.read(limit + 1)
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ValueError(f"{path}: is a folder, expected {what}") from None
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    raw = read_start(path, limit + 1, what)
     if len(raw) > limit:
         raise ValueError(f"{path}: larger than {limit // (1024 * 1024)} MB; expected {what} "
                          "(a few KB)")
