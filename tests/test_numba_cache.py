@@ -79,3 +79,48 @@ def test_a_read_only_install_caches_in_the_temporary_directory(
     assert config.CACHE_DIR == chosen
     monkeypatch.setattr(config, "CACHE_DIR", "/somewhere/else")
     assert kernel_cache.ensure_cache_dir() is None  # NUMBA_CACHE_DIR given: left alone
+
+
+@pytest.mark.parametrize("case", ["missing", "ours", "open to others", "another user's",
+                                  "a link", "a file"])
+def test_the_temporary_cache_folder_is_used_only_when_private(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path, case: str) -> None:
+    """The fallback ``apcc-graph-numba-<uid>`` is used only when it is a real folder of this
+    user's with mode 0700 (made so when missing); a folder another user owns (os.getuid
+    replaced), one others can write to, a symbolic link or a file is not: a new private folder
+    of the process's own is used instead (numba's cache index is a pickle, loaded as code)."""
+    import stat
+
+    from numba.core import config
+
+    from apcc_graph.model import kernel_cache
+
+    monkeypatch.setattr(config, "CACHE_DIR", "")
+    monkeypatch.setattr(kernel_cache, "_writable", lambda folder: False)
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    monkeypatch.setattr(kernel_cache.tempfile, "tempdir", str(temp))
+    uid = os.getuid()
+    fixed = temp / f"apcc-graph-numba-{uid}"
+    if case in ("ours", "another user's"):
+        fixed.mkdir(mode=0o700)
+    elif case == "open to others":
+        fixed.mkdir()
+        fixed.chmod(0o777)
+    elif case == "a link":
+        (tmp_path / "elsewhere").mkdir(mode=0o700)
+        fixed.symlink_to(tmp_path / "elsewhere")
+    elif case == "a file":
+        fixed.write_text("")
+    if case == "another user's":
+        monkeypatch.setattr(kernel_cache.os, "getuid", lambda: uid + 1)
+        fixed = fixed.rename(temp / f"apcc-graph-numba-{uid + 1}")  # the name it looks for
+    chosen = Path(kernel_cache.ensure_cache_dir() or "")
+    assert config.CACHE_DIR == str(chosen) and chosen.parent == temp
+    info = os.lstat(chosen)
+    assert stat.S_ISDIR(info.st_mode) and stat.S_IMODE(info.st_mode) == 0o700
+    assert info.st_uid == os.stat(temp).st_uid
+    if case in ("missing", "ours"):
+        assert chosen == fixed
+    else:
+        assert chosen != fixed and chosen.name.startswith("apcc-graph-numba-")
