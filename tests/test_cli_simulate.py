@@ -41,6 +41,18 @@ def test_simulate_refuses_a_non_empty_folder_unless_forced(tmp_path: Path, capsy
     assert (out / "frames.csv").exists() and not (out / "keep.txt").exists()
 
 
+def test_simulate_force_never_replaces_the_recorded_poses(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "seq"
+    out.mkdir()
+    poses = out / "poses.csv"
+    poses.write_text("the user's recording\n")  # checked before it is read
+    assert main(["simulate", "--robot", ROBOT, "--motion", str(poses), "--out", str(out),
+                 "--force"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "holds the input" in err[0] and str(poses) in err[0]
+    assert poses.read_text() == "the user's recording\n"
+
+
 @pytest.mark.parametrize(
     "bad",
     [["--frames", "1"], ["--outliers", "1.5"], ["--noise-px", "-1"], ["--fps", "abc"],

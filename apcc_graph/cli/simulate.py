@@ -114,7 +114,8 @@ def run(args: argparse.Namespace) -> str:
     from apcc_graph.io.output_folder import staged_folder
     from apcc_graph.simulation.simulator import simulate
 
-    out = check_output_folder(args.out, args.force, inputs=[args.robot])
+    poses = [] if args.motion in ("smooth", "paper") else [args.motion]  # a recording
+    out = check_output_folder(args.out, args.force, inputs=[args.robot, *poses])
     scene = args.scene or ("room" if args.images else "points")
     if args.images and scene != "room":
         raise UserError("--images renders the textured room: use --scene room (or leave "
