@@ -103,18 +103,14 @@ ROUND_TRIP_PX = 0.1
 
 
 @lru_cache(maxsize=256)
-def _distortion_problem(fx: float, fy: float, cx: float, cy: float, width: int, height: int,
-                        dist: tuple[float, ...], model: str) -> str | None:
+def _distortion_problem(camera: TipCamera) -> str | None:
     """Why a distortion cannot be inverted over the image, or ``None``: checked with the
     camera's own projection. Toward each image corner and edge middle, the distorted radius must
     grow with the ray's angle until it reaches that border (else some pixels are seen by two
     rays, or none); and pixels over the image, undistorted and projected back, must land where
     they were (else undistortion diverges there)."""
-    camera = object.__new__(TipCamera)  # the unchecked camera, to look at it
-    for name, value in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy), ("width", width),
-                        ("height", height), ("distortion", dist), ("model", model),
-                        ("tip_T_cam", np.eye(4))):
-        object.__setattr__(camera, name, value)
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    width, height = camera.width, camera.height
     border = np.array([[0.0, 0.0], [width, 0.0], [0.0, height], [width, height],
                        [width / 2, 0.0], [width / 2, height], [0.0, height / 2],
                        [width, height / 2]])
@@ -232,8 +228,7 @@ class TipCamera:
         object.__setattr__(self, "distortion", dist)
         object.__setattr__(self, "tip_T_cam", validate_pose("TipCamera.tip_T_cam", self.tip_T_cam))
         if dist and self.model == "pinhole":  # a fisheye's image circle may leave corners dark
-            problem = _distortion_problem(self.fx, self.fy, self.cx, self.cy, self.width,
-                                          self.height, dist, self.model)
+            problem = _distortion_problem(self)  # every field is set and checked by now
             if problem:
                 raise ValueError(f"TipCamera.distortion = {list(dist)}: {problem}")
 
