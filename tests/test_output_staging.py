@@ -58,3 +58,22 @@ def test_ctrl_c_between_the_two_renames_leaves_one_output_whole(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no .old-, no staging
     assert [p.name for p in out.iterdir()] in (["new.txt"], ["old.txt"])
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+
+def test_writing_tracks_keeps_everything_else_in_the_tracks_folder(tmp_path: Path) -> None:
+    from apcc_graph.frontend.tracking import _write_tracks
+
+    tracks = tmp_path / "tracks"
+    (tracks / "notes" / "deeper").mkdir(parents=True)
+    (tracks / "notes" / "deeper" / "a.txt").write_text("a\n")
+    (tracks / ".hidden").write_text("h\n")
+    (tracks / "other.csv").write_text("o\n")
+    (tracks / "link").symlink_to("other.csv")
+    (tracks / "cam_1.csv").write_text("old\n")
+    _write_tracks(tracks, {"cam_1.csv": "new\n"})
+    assert (tracks / "cam_1.csv").read_text() == "new\n"
+    assert (tracks / "notes" / "deeper" / "a.txt").read_text() == "a\n"
+    assert (tracks / ".hidden").read_text() == "h\n"
+    assert (tracks / "other.csv").read_text() == "o\n"
+    assert (tracks / "link").is_symlink() and os.readlink(tracks / "link") == "other.csv"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tracks"]

@@ -242,7 +242,8 @@ def track_sequence(folder: str | Path, force: bool = False,
 
 def _write_tracks(tracks_dir: Path, texts: dict[str, str]) -> list[Path]:
     """The ``tracks/`` folder replaced whole by one holding ``texts`` (file name -> text) and
-    the other files it held: written beside it and swapped in when complete."""
+    everything else it held (sub-folders, hidden files and symlinks as they are): written
+    beside it and swapped in when complete."""
     import shutil
 
     from apcc_graph.io.output_folder import staged_folder
@@ -250,8 +251,12 @@ def _write_tracks(tracks_dir: Path, texts: dict[str, str]) -> list[Path]:
     with staged_folder(tracks_dir, replace=True) as staging:
         if tracks_dir.is_dir():
             for kept in tracks_dir.iterdir():
-                if kept.name not in texts and kept.is_file() and kept.name[:1] != ".":
-                    shutil.copy2(kept, staging / kept.name)
+                if kept.name in texts or kept == staging:
+                    continue
+                if kept.is_dir() and not kept.is_symlink():
+                    shutil.copytree(kept, staging / kept.name, symlinks=True)
+                else:
+                    shutil.copy2(kept, staging / kept.name, follow_symlinks=False)
         for name, text in texts.items():
             atomic_write_text(staging / name, text)
     return [tracks_dir / name for name in texts]
