@@ -26,6 +26,14 @@ def run_python_blocks(page: Path, folder: Path, monkeypatch) -> dict:  # noqa: A
     return namespace
 
 
+def one_line_error(capsys) -> str:  # noqa: ANN001 - pytest's CaptureFixture
+    """What the command line printed on stderr, checked to be one error line, no traceback."""
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err, err
+    assert err.startswith("apcc-graph: error: "), err
+    return err
+
+
 def random_pose(rng: np.random.Generator, rot: float, trans: float) -> np.ndarray:
     """A random 4x4 pose: rotation vector ~ N(0, rot) rad, translation ~ N(0, trans) m."""
     rotation = gtsam.Rot3.Expmap(rng.normal(0.0, rot, 3))
