@@ -413,3 +413,40 @@ def test_sigint_during_the_start_search_writes_the_kept_frames(tmp_path: Path) -
     assert 10 <= len(frames) < 30 and frames.tolist() == list(range(len(frames)))
     for i in range(1, 4):
         assert (out / f"tips_seg_{i}.tum").read_text().count("\n") == len(frames)
+
+
+def test_live_force_empties_the_folder_first_and_refuses_one_holding_an_input(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``live --force`` into a folder of another run: the old files (a fourth segment's TUM
+    file, a calibration, a subfolder) are gone and theta.csv holds this run's 12 frames only;
+    a folder holding the --robot file is refused with one line, the file kept."""
+    import shutil
+
+    from apcc_graph.estimation import live as live_module
+
+    monkeypatch.setattr(live_module, "recording_frames", lambda *a, **k: _frames())
+    monkeypatch.setattr("apcc_graph.frontend.recordings.video_streams", lambda files: [])
+    out = tmp_path / "live"
+    (out / "figures").mkdir(parents=True)
+    (out / "figures" / "old.png").write_bytes(b"png")
+    (out / "tips_seg_4.tum").write_text("0 0 0 0 0 0 0 1\n")
+    (out / "robot_calibrated.toml").write_text("[robot]\n")
+    (out / "theta.csv").write_text("frame,timestamp,theta_1\n" + "7,9.0,0.1\n" * 40)
+    args = ["live", "--video", "a.mp4,b.mp4,c.mp4", "--robot", str(ROBOT), "--out", str(out),
+            "--no-realtime", "--theta0-deg", "0,0,0"]
+    assert main(args) == 1  # not empty, no --force
+    assert "add --force" in capsys.readouterr().err
+    assert main([*args, "--force"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["theta.csv", "tips_seg_1.tum",
+                                                     "tips_seg_2.tum", "tips_seg_3.tum"]
+    table = load_theta_table(out / "theta.csv")
+    assert table.frame_numbers().tolist() == list(range(FRAMES))
+    assert table.thetas.shape == (FRAMES, 3) and np.all(np.isfinite(table.thetas))
+    robot = out / "robot.toml"
+    shutil.copy(ROBOT, robot)
+    capsys.readouterr()
+    assert main([*args[:4], str(robot), *args[5:], "--force"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "holds the input" in err[0] and robot.exists()
+    assert (out / "theta.csv").exists()  # refused before anything was deleted

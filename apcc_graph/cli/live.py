@@ -38,17 +38,21 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "as they arrive, from a ROS bag (SOURCE), one video file per camera (--video) or "
         "cameras plugged in (--devices). Each frame's final estimate is appended to "
         "--out/theta.csv and tips_seg_<i>.tum and flushed, so a crash loses nothing already "
-        "estimated; on a terminal a line on stderr shows the rate, the latency and the current "
+        "estimated (so --force cannot replace the folder once complete, as estimate does: it "
+        "deletes whatever --out held first); on a terminal a line on stderr shows the rate, "
+        "the latency and the current "
         "angles (an angle beyond its segment's limit is written clamped to it and flagged in "
         "clamped_<i>, with a warning). Ctrl-C stops at the next frame: the frames still in the "
         "window are smoothed and written, then the command exits with code 130. Without "
-        "--theta0-deg the start is searched in the first second of frames, as estimate does. A "
+        "--theta0-deg the start is searched in the first second of frames, as estimate does (a "
+        "Ctrl-C before then searches it in the frames so far and writes them). A "
         "recording plays at its own pace: every frame is tracked, but when the smoother falls "
         "behind, the frames that arrived while it was busy are not smoothed but the newest, "
         "and are counted as dropped (--no-realtime smooths every frame, as fast as it can). "
         "See docs/estimation.md, \"Live\".",
         epilog=EXAMPLE, formatter_class=FORMATTER,
-        parents=[force_option("write into an --out folder that is not empty")])
+        parents=[force_option("empty an --out folder that is not empty first (it must not "
+                              "be or hold an input, the current folder or your home)")])
     live.add_argument("source", nargs="?", default=None, help="a ROS 1 bag file or ROS 2 folder")
     live.add_argument("--video", default=None, help="video files, one per camera, comma-separated")
     live.add_argument("--devices", default=None,
@@ -84,7 +88,11 @@ def run(args: argparse.Namespace) -> str:
         raise UserError(f"--lag {args.lag}: expected seconds > 0")
     theta0 = _theta0(args.theta0_deg, robot)
     frames = _frames(args, robot)
-    out = check_output_folder(args.out, args.force)
+    inputs = [args.robot, *([args.source] if args.source else []),
+              *(v for v in (args.video or "").split(",") if v)]
+    out = check_output_folder(args.out, args.force, inputs=inputs)
+    if args.force and out.is_dir():
+        _empty(out)  # rows are appended as they come: the old run's files must not stay
     estimator = LiveEstimator(robot, theta0, SmootherOptions(lag=args.lag),
                               realtime=not args.no_realtime)
     files = AppendedEstimate(out, robot.n_segments, lambda th: robot.forward(th))
@@ -120,6 +128,17 @@ def run(args: argparse.Namespace) -> str:
         print(summary, flush=True)
         raise KeyboardInterrupt
     return summary
+
+
+def _empty(folder: Path) -> None:
+    """Delete everything in ``folder`` (links themselves, not what they point to)."""
+    import shutil
+
+    for entry in folder.iterdir():
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
 
 
 def _status_text(est: LiveEstimate) -> str:
