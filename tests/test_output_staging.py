@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from apcc_graph.io import output_folder
-from apcc_graph.io.output_folder import staged_folder
+from apcc_graph.io.output_folder import check_writable, staged_folder
 
 
 class _NativeThread(threading.Thread):
@@ -77,3 +77,94 @@ def test_writing_tracks_keeps_everything_else_in_the_tracks_folder(tmp_path: Pat
     assert (tracks / "other.csv").read_text() == "o\n"
     assert (tracks / "link").is_symlink() and os.readlink(tracks / "link") == "other.csv"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tracks"]
+
+
+@pytest.fixture
+def read_only_parent(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """``tmp_path/parent``, in which no new file, folder or rename can be made (a bind-mounted
+    ``/out`` whose parent is read-only; made up, since root would write anyway)."""
+    import errno
+    import tempfile
+
+    parent = tmp_path / "parent"
+    parent.mkdir()
+
+    def refused(where: Any) -> None:
+        if Path(where).parent == parent:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(where))
+
+    real_mkstemp, real_mkdtemp, real_rename = tempfile.mkstemp, tempfile.mkdtemp, os.rename
+
+    def mkstemp(*args: Any, dir: Any = None, **kwargs: Any) -> Any:  # noqa: A002
+        refused(Path(dir) / "x")
+        return real_mkstemp(*args, dir=dir, **kwargs)
+
+    def mkdtemp(*args: Any, dir: Any = None, **kwargs: Any) -> Any:  # noqa: A002
+        refused(Path(dir) / "x")
+        return real_mkdtemp(*args, dir=dir, **kwargs)
+
+    def rename(source: Any, target: Any) -> None:
+        refused(source)
+        refused(target)
+        real_rename(source, target)
+
+    monkeypatch.setattr(output_folder.tempfile, "mkstemp", mkstemp)
+    monkeypatch.setattr(output_folder.tempfile, "mkdtemp", mkdtemp)
+    monkeypatch.setattr(output_folder.os, "rename", rename)
+    return parent
+
+
+def test_an_empty_out_in_a_read_only_parent_is_written_into(read_only_parent: Path) -> None:
+    out = read_only_parent / "out"
+    out.mkdir(mode=0o750)
+    out.chmod(0o750)
+    inode = out.stat().st_ino
+    assert check_writable(out) == out  # probed inside it
+    with pytest.raises(OSError, match="cannot be written"):
+        check_writable(read_only_parent / "new")  # a new folder there cannot be made
+    with staged_folder(out) as staging:
+        (staging / "theta.csv").write_text("new\n")
+        (staging / "sub").mkdir()
+        (staging / "sub" / "a.txt").write_text("a\n")
+    assert sorted(p.name for p in out.iterdir()) == ["sub", "theta.csv"]  # no hidden folder
+    assert (out / "sub" / "a.txt").read_text() == "a\n"
+    assert out.stat().st_ino == inode and (out.stat().st_mode & 0o777) == 0o750  # the same
+    assert sorted(p.name for p in read_only_parent.iterdir()) == ["out"]
+
+
+def test_a_symlink_to_an_empty_folder_stays_a_symlink(tmp_path: Path) -> None:
+    real = tmp_path / "real"
+    real.mkdir()
+    link = tmp_path / "out"
+    link.symlink_to(real)
+    with pytest.raises(RuntimeError), staged_folder(link) as staging:  # a failure: nothing
+        (staging / "half.csv").write_text("half\n")
+        raise RuntimeError
+    assert link.is_symlink() and list(real.iterdir()) == []
+    with staged_folder(link) as staging:
+        (staging / "theta.csv").write_text("new\n")
+    assert link.is_symlink() and os.readlink(link) == str(real)
+    assert [p.name for p in real.iterdir()] == ["theta.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "real"]
+
+
+def test_ctrl_c_while_moving_up_leaves_all_or_nothing(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    real = os.rename
+    calls: list[Any] = []
+    native = _NativeThread()
+    native.start()
+
+    def rename(source: Any, target: Any) -> None:
+        real(source, target)
+        calls.append(source)
+        if len(calls) == 1:  # the first of three files has just been moved up
+            native.interrupt()
+
+    monkeypatch.setattr(output_folder.os, "rename", rename)
+    with pytest.raises(KeyboardInterrupt), staged_folder(out) as staging:
+        for name in ("a.csv", "b.csv", "c.csv"):
+            (staging / name).write_text(name)
+    assert sorted(p.name for p in out.iterdir()) == ["a.csv", "b.csv", "c.csv"]

@@ -4,6 +4,11 @@ complete. A failure, a full disk or Ctrl-C removes the staging folder and leaves
 destination as it was; with ``replace`` an existing destination is swapped out only at the end
 (renamed aside, the new one renamed in, the old one deleted), so the old and the new never mix.
 
+A destination that exists and is empty (a folder, a symlink to one, a mount point, a folder
+whose parent cannot be written) is kept as it is, with its owner, mode and ACLs: the staging
+folder is then made inside it (``.apcc-graph.partial-XXXX``), and its contents are moved up
+into it when complete.
+
 Before any computing, :func:`check_writable` tells whether a destination can be written at all.
 """
 
@@ -22,14 +27,26 @@ from apcc_graph.io.interrupts import check_interrupted, deferring_interrupts
 STAGING = ".partial-"
 """What the name of a staging folder holds (``.NAME.partial-XXXX``)."""
 
+INSIDE = f".apcc-graph{STAGING}"
+"""The name of a staging folder inside an empty destination (``.apcc-graph.partial-XXXX``)."""
+
 
 def staging_folders(destination: str | Path) -> list[Path]:
-    """The staging folders of ``destination`` left in its parent (by a process that was
-    killed before it could remove them)."""
+    """The staging folders of ``destination`` left in its parent or inside it (by a process
+    that was killed before it could remove them)."""
     destination = Path(destination)
-    if not destination.parent.is_dir():
-        return []
-    return sorted(destination.parent.glob(f".{destination.name}{STAGING}*"))
+    beside = (sorted(destination.parent.glob(f".{destination.name}{STAGING}*"))
+              if destination.parent.is_dir() else [])
+    inside = sorted(destination.glob(f"{INSIDE}*")) if destination.is_dir() else []
+    return beside + inside
+
+
+def _is_empty_folder(path: Path) -> bool:
+    """Whether ``path`` is an existing folder (or a symlink to one) that holds nothing."""
+    try:
+        return path.is_dir() and not any(path.iterdir())
+    except OSError:
+        return False
 
 
 def _nearest_existing(path: Path) -> Path:
@@ -54,7 +71,9 @@ def check_writable(path: str | Path, folder: bool = True) -> Path:
         raise OSError(f"{path}: is a file, expected a folder to write into")
     if not folder and path.is_dir():
         raise OSError(f"{path}: is a folder, not a file")
-    parent = _nearest_existing(path.parent)
+    # an empty folder is written into (see staged_folder), any other beside
+    parent = path.absolute() if folder and _is_empty_folder(path) else _nearest_existing(
+        path.parent)
     if not parent.is_dir():
         raise OSError(f"{path}: cannot be created: {parent} is a file, not a folder")
     try:
@@ -104,17 +123,24 @@ def staged_folder(destination: str | Path, replace: bool = False) -> Iterator[Pa
             ``destination``), or ``destination`` holds something and ``replace`` is not given.
     """
     destination = Path(os.path.abspath(destination))  # "." and ".." have no name to stage
+    inside = _is_empty_folder(destination)  # kept as it is (owner, mode, a symlink, a mount)
     try:
-        destination.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{destination.name}{STAGING}",
-                                        dir=destination.parent))
+        if inside:
+            staging = Path(tempfile.mkdtemp(prefix=INSIDE, dir=destination))
+        else:
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            staging = Path(tempfile.mkdtemp(prefix=f".{destination.name}{STAGING}",
+                                            dir=destination.parent))
         os.chmod(staging, folder_mode())
     except OSError as exc:
         raise write_error(exc, destination) from exc
     try:
         yield staging
         check_interrupted()
-        _swap_in(staging, destination, replace)
+        if inside:
+            _move_up(staging, destination)
+        else:
+            _swap_in(staging, destination, replace)
     except OSError as exc:
         _remove(staging)
         if exc.filename is not None and str(exc.filename).startswith(str(staging)):
@@ -127,6 +153,26 @@ def staged_folder(destination: str | Path, replace: bool = False) -> Iterator[Pa
     except BaseException:
         _remove(staging)
         raise
+
+
+def _move_up(staging: Path, destination: Path) -> None:
+    """Move the contents of the complete ``staging`` folder up into ``destination`` (its
+    parent, empty when the staging began), all of them or none, and remove ``staging``."""
+    appeared = sorted(p.name for p in destination.iterdir() if p != staging)
+    if appeared:
+        raise OSError(f"{destination}: {appeared[0]} appeared in it while writing; the new "
+                      "output was not written")
+    moved: list[str] = []
+    with deferring_interrupts():  # Ctrl-C (in any thread) after the last one only
+        try:
+            for entry in sorted(p.name for p in staging.iterdir()):
+                os.rename(staging / entry, destination / entry)
+                moved.append(entry)
+            staging.rmdir()
+        except OSError:
+            for entry in moved:  # back into the staging folder, which the caller removes
+                os.rename(destination / entry, staging / entry)
+            raise
 
 
 def _swap_in(staging: Path, destination: Path, replace: bool) -> None:
