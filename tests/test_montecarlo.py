@@ -35,6 +35,9 @@ def test_a_study_writes_each_seed_beside_its_bound_and_resumes(tmp_path: Path) -
         # 40 frames from a 0.1 deg start prior: the bound grows with the motion, not far
         assert all(math.radians(0.02) < b < math.radians(0.5) for b in r.bound), r.bound
         assert (out / f"seed_{r.seed:04d}" / "sequence" / "tracks").is_dir()
+    # done.txt names the sequence where it is now, not the staging folder it was made in
+    done = (out / "seed_0005" / "estimate" / "done.txt").read_text()
+    assert str(out / "seed_0005" / "sequence") in done and ".partial-" not in done
     first = (out / "seed_0005" / "estimate" / "theta.csv").read_bytes()
     again = run_montecarlo(ROBOT_FILE, 3, FRAMES, out, "batch", first_seed=5, workers=1)
     assert [r.run.status for r in again] == ["skipped", "skipped", "ok"]
@@ -56,6 +59,21 @@ def test_a_seed_that_fails_is_a_row_and_stops_nothing(tmp_path: Path) -> None:
     assert summarise(runs)[2] == 0
     with pytest.raises(ValueError, match="outliers = 1.5"):
         run_montecarlo(ROBOT_FILE, 1, FRAMES, tmp_path / "x", outliers=1.5, workers=1)
+
+
+def test_a_failed_seed_names_its_files_where_they_would_be(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import apcc_graph.io
+
+    def load_sequence(folder: object) -> None:
+        raise ValueError(f"{folder}/frames.csv: line 2: bad")
+
+    monkeypatch.setattr(apcc_graph.io, "load_sequence", load_sequence)
+    runs = run_montecarlo(ROBOT_FILE, 1, FRAMES, tmp_path / "mc", workers=1)
+    status = runs[0].run.status
+    assert status.startswith("failed: ") and ".partial-" not in status
+    assert str(tmp_path / "mc" / "seed_0001" / "sequence" / "frames.csv") in status
+    assert runs[0].run.sequence == str(tmp_path / "mc" / "seed_0001" / "sequence")
 
 
 def test_dask_gives_the_bits_of_the_serial_run(tmp_path: Path) -> None:

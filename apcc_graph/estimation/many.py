@@ -31,7 +31,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -79,14 +79,18 @@ def output_folder(out_root: str | Path, sequence: str | Path) -> Path:
 
 
 def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
-                 redo: bool = False) -> SequenceRun:
+                 redo: bool = False, names: tuple[str, str] | None = None) -> SequenceRun:
     """Load, estimate and write one sequence; never raises for a bad sequence (the error is
     its status). Skips it when ``out`` already holds complete outputs, unless ``redo``; any
     other non-empty ``out`` is replaced only with ``redo`` (and never when it is or holds the
     current folder, the home folder or ``sequence``), else it is the sequence's failure.
 
     ``options["theta0"] = "truth"`` starts each sequence at its ground-truth first frame: the
-    protocol of the benchmarks on simulated sequences, never for real recordings."""
+    protocol of the benchmarks on simulated sequences, never for real recordings.
+
+    ``names``: the sequence and output folders as the run, its ``done.txt`` and its error
+    message name them, when ``sequence`` and ``out`` are in a staging folder that will be moved
+    into place (default: ``sequence`` and ``out``)."""
     done = Path(out) / DONE
     if done.is_file() and not redo:
         return _skipped(sequence, out, method, done)
@@ -104,6 +108,8 @@ def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
         with threadpool_limits(limits=1, user_api="blas"), \
                 staged_folder(out, replace=True) as staging:
             run = _estimate_and_write(sequence, out, method, options, start, staging)
+            if names is not None:
+                run = replace(run, sequence=names[0], out=names[1])
             atomic_write_text(staging / DONE, summary_csv([run]))
         return run
     except Exception as error:  # noqa: BLE001 - any failure is this sequence's status
@@ -111,6 +117,9 @@ def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
         kind = "" if isinstance(error, ValueError | OSError) else f"{type(error).__name__}: "
         message = (gtsam_failure(error) if is_gtsam_error(error)
                    else kind + " ".join(str(error).split()))
+        if names is not None:
+            message = message.replace(out, names[1]).replace(sequence, names[0])
+            sequence, out = names
         return SequenceRun(sequence, out, method, 0, time.perf_counter() - start, (),
                            f"failed: {message}")
 

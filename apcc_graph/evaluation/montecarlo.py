@@ -69,19 +69,25 @@ def run_seed(robot_file: str, frames: int, seed: int, noise_px: float, outliers:
     if not redo and (estimate / DONE).is_file() and bound_file.is_file():
         bound = tuple(math.radians(float(v)) for v in bound_file.read_text().split()[1:])
         return SeedRun(seed, estimate_one(str(sequence), str(estimate), method, options), bound)
+    staged = ""
     try:
         # the seed's folder is written whole: in a staging folder, moved into place at the end
+        # (done.txt and the messages name the files where they will be, not where they are)
         with staged_folder(root, replace=True) as staging:
+            staged = str(staging)
             bound, options["theta0"] = _simulate_and_bound(robot_file, frames, seed, noise_px,
                                                            outliers, staging / "sequence")
             atomic_write_text(staging / "bound.csv", "bound_deg " + " ".join(
                 f"{math.degrees(b):.6f}" for b in bound) + "\n")
             run = estimate_one(str(staging / "sequence"), str(staging / "estimate"), method,
-                               options, True)
+                               options, True, names=(str(sequence), str(estimate)))
     except Exception as error:  # noqa: BLE001 - the seed's status, not the study's end
         check_interrupted()  # unless it came of Ctrl-C
+        message = " ".join(str(error).split())
+        if staged:
+            message = message.replace(staged, str(root))
         failed = SequenceRun(str(sequence), str(estimate), method, 0, 0.0, (),
-                             f"failed: {' '.join(str(error).split())}")
+                             f"failed: {message}")
         return SeedRun(seed, failed, ())
     return SeedRun(seed, replace(run, sequence=str(sequence), out=str(estimate)), bound)
 
