@@ -73,6 +73,21 @@ def test_sigint_to_a_batch_estimate_exits_130_in_one_line_and_writes_nothing(
     assert list(tmp_path.iterdir()) == []  # no output folder, no staging folder
 
 
+def test_sigint_between_loading_and_main_is_one_line_too() -> None:
+    # the command's modules are loaded, main() has not yet taken Ctrl-C over
+    code = ("import signal, sys; sys.argv[0] = 'apcc-graph'; from apcc_graph.cli import main; "
+            "signal.raise_signal(signal.SIGINT); sys.exit(main(['--help']))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr.strip().splitlines() == ["apcc-graph: interrupted"]
+    assert proc.stdout == ""  # main acted on it before doing anything
+    # a program that imports the command line keeps Python's own Ctrl-C
+    code = ("import signal, apcc_graph.cli; "
+            "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler")
+    assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 0
+
+
 def test_sigint_while_the_command_loads_is_one_line_too(tmp_path: Path) -> None:
     out = tmp_path / "est"
     proc = subprocess.Popen([str(CONSOLE), "estimate", str(SAMPLE), "--out", str(out)],

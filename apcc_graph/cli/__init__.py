@@ -24,13 +24,19 @@ def _interrupted_while_starting(signum: int, frame: object) -> None:
 # the modules take a second or two to load: a Ctrl-C then is one line too, not a traceback
 _starting = _threading.current_thread() is _threading.main_thread() and (
     _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler)
+# the command itself (its console script, or python -m apcc_graph.cli), not a program that
+# imports it: Ctrl-C stays recorded until main() takes over, and main() then acts on it
+_command = _sys.argv[0] == "-m" or _sys.argv[0].replace("\\", "/").rsplit("/", 1)[-1] in (
+    "apcc-graph", "apcc-graph.exe", "apcc-graph-script.py")
 if _starting:
     _signal.signal(_signal.SIGINT, _interrupted_while_starting)
 try:
     from apcc_graph.cli.main import build_parser, main
+    from apcc_graph.io.interrupts import record_early_interrupt as _record
 finally:
     if _starting:
-        _signal.signal(_signal.SIGINT, _signal.default_int_handler)
+        _signal.signal(_signal.SIGINT, _record if _command and "_record" in globals()
+                       else _signal.default_int_handler)
 if _interrupted:
     print("apcc-graph: interrupted", file=_sys.stderr)
     raise SystemExit(130)

@@ -31,6 +31,14 @@ def check_interrupted() -> None:
 
 _raised = [0]  # KeyboardInterrupts raised by the handler so far
 _active = threading.Event()  # inside catching_interrupts
+_early = threading.Event()  # Ctrl-C before catching_interrupts, noted by record_early_interrupt
+
+
+def record_early_interrupt(signum: int, frame: FrameType | None) -> None:
+    """A SIGINT handler for a command line's start, until :func:`catching_interrupts` installs
+    its own: Ctrl-C is only noted, and the block raises it as soon as it begins (no traceback
+    from whatever code ran at that moment)."""
+    _early.set()
 
 
 def _on_sigint(signum: int, frame: FrameType | None) -> None:
@@ -76,6 +84,10 @@ def catching_interrupts(final: bool = False) -> Iterator[None]:
     _active.set()
     interrupted = False
     try:
+        if _early.is_set():  # Ctrl-C while the command started: acted on now
+            _early.clear()
+            INTERRUPTED.set()
+            raise KeyboardInterrupt
         yield
     except KeyboardInterrupt:
         interrupted = True
