@@ -184,3 +184,31 @@ def test_several_workers_without_dask_run_here_with_a_note(
         assert many.map_tasks(pow, [(2, 3), (3, 2)], workers=3) == [8, 9]
     with pytest.raises(ValueError, match="a Dask scheduler needs Dask"):
         many.map_tasks(pow, [(2, 3)], scheduler="tcp://127.0.0.1:1")
+
+
+def test_a_dask_run_leaves_this_processs_settings_as_they_were(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("distributed")
+    import logging
+    import math
+    import os
+
+    from apcc_graph.estimation import many
+
+    monkeypatch.setenv("PYTHONWARNINGS", "default")
+    levels = {name: logging.getLogger(name).level for name in many.DASK_LOGGERS}
+    assert many.map_tasks(math.sqrt, [(4.0,), (9.0,)], workers=2) == [2.0, 3.0]
+    assert os.environ["PYTHONWARNINGS"] == "default"
+
+    class Interrupted:  # Ctrl-C as the first result comes in
+        def update(self) -> None:
+            raise KeyboardInterrupt
+
+        def close(self) -> None:
+            pass
+
+    monkeypatch.setattr(many, "progress_bar", lambda **kwargs: Interrupted())
+    with pytest.raises(KeyboardInterrupt):
+        many.map_tasks(math.sqrt, [(4.0,)], workers=2)
+    assert os.environ["PYTHONWARNINGS"] == "default"
+    assert {name: logging.getLogger(name).level for name in many.DASK_LOGGERS} == levels

@@ -30,7 +30,7 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
@@ -275,35 +275,61 @@ def _on_dask(function: Callable[..., Result], jobs: list[tuple[Any, ...]], worke
         raise ValueError('a Dask scheduler needs Dask: pip install "apcc-graph[dask]" '
                          "(or leave out --scheduler to run here)") from None
     cluster = None
-    try:
-        if scheduler is None:
-            cluster = _local_cluster(workers or os.cpu_count() or 1)
-        with Client(scheduler or cluster) as client:
-            futures = {client.submit(function, *job, pure=False): i
-                       for i, job in enumerate(jobs)}
-            results: list[Result | None] = [None] * len(jobs)
-            bar = progress_bar(total=len(jobs), desc=label, progress=progress)
-            try:
-                for future in as_completed(futures):
-                    results[futures[future]] = future.result()
-                    bar.update()
-            except BaseException:
-                _quiet_dask()  # the shutdown's own complaints are no news after Ctrl-C
-                raise
-            finally:
-                bar.close()
-    finally:
-        if cluster is not None:
-            cluster.close()
+    with _cluster_settings():  # this process's settings are as they were once it is over
+        try:
+            if scheduler is None:
+                cluster = _local_cluster(workers or os.cpu_count() or 1)
+            with Client(scheduler or cluster) as client:
+                futures = {client.submit(function, *job, pure=False): i
+                           for i, job in enumerate(jobs)}
+                results: list[Result | None] = [None] * len(jobs)
+                bar = progress_bar(total=len(jobs), desc=label, progress=progress)
+                try:
+                    for future in as_completed(futures):
+                        results[futures[future]] = future.result()
+                        bar.update()
+                except BaseException:
+                    _quiet_dask()  # the shutdown's own complaints are no news after Ctrl-C
+                    raise
+                finally:
+                    bar.close()
+        finally:
+            if cluster is not None:
+                cluster.close()
     return [r for r in results if r is not None]
 
 
-def _quiet_dask() -> None:
-    """Dask's loggers silenced: an interrupted cluster's shutdown reports every lost task and
-    worker, which says nothing the one line of the interruption does not."""
+DASK_LOGGERS = ("distributed", "tornado", "asyncio")
+"""The loggers :func:`_quiet_dask` silences for the rest of a cluster's life."""
+
+
+@contextlib.contextmanager
+def _cluster_settings() -> Iterator[None]:
+    """What a cluster's run changes in this process, restored when it ends: the environment
+    variable ``PYTHONWARNINGS`` (for the cluster's processes, see :func:`_local_cluster`) and
+    the levels of :data:`DASK_LOGGERS`."""
     import logging
 
-    for name in ("distributed", "tornado", "asyncio"):
+    warnings_filters = os.environ.get("PYTHONWARNINGS")
+    levels = {name: logging.getLogger(name).level for name in DASK_LOGGERS}
+    try:
+        yield
+    finally:
+        if warnings_filters is None:
+            os.environ.pop("PYTHONWARNINGS", None)
+        else:
+            os.environ["PYTHONWARNINGS"] = warnings_filters
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
+
+
+def _quiet_dask() -> None:
+    """Dask's loggers silenced (until :func:`_cluster_settings` ends): an interrupted
+    cluster's shutdown reports every lost task and worker, which says nothing the one line of
+    the interruption does not."""
+    import logging
+
+    for name in DASK_LOGGERS:
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
@@ -322,7 +348,8 @@ def _local_cluster(workers: int) -> Any:
     environ["DASK_LOGGING__DISTRIBUTED"] = "critical"
     # Ctrl-C at a terminal reaches every process of the group: the workers ignore it
     # (dask_worker, a preload), this process shuts the cluster down; multiprocessing's resource
-    # tracker would then list the semaphores the workers left, no news after the one line
+    # tracker would then list the semaphores the workers left, no news after the one line (the
+    # processes started now inherit the filter; _cluster_settings restores this process's)
     quiet = "ignore::UserWarning:multiprocessing.resource_tracker"
     filters = [f for f in os.environ.get("PYTHONWARNINGS", "").split(",") if f]
     os.environ["PYTHONWARNINGS"] = ",".join(filters + [quiet] * (quiet not in filters))
