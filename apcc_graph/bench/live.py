@@ -7,8 +7,9 @@ textured room, each tip camera's view rendered (``apcc_graph.simulation.render``
 - **offline**: ``apcc-graph track --video`` and ``estimate --method smoother`` (every frame);
 - **live**: :class:`~apcc_graph.estimation.live.LiveEstimator` at the videos' own pace (frames
   that arrive while it is busy are dropped but the newest), and every frame as fast as it can
-  (which should give the offline answer), from the true start and from the start it searches
-  in the first second itself (as ``apcc-graph live`` without ``--theta0-deg``).
+  (which should give the offline answer), from the true start, from the start it searches
+  in the first second itself (as ``apcc-graph live`` without ``--theta0-deg``; the start found
+  is printed beside the true one) and from the robot straight (``--theta0-deg 0,0,0``).
 
 Printed: frames estimated, the rate, the latency (median and 95th percentile), frames dropped,
 and RMS per segment against the simulated truth over the frames each estimated (targets: 30
@@ -44,6 +45,7 @@ class LiveRun:
     rms: FloatArray  # (S,) radians, over the frames estimated
     latency: tuple[float, float] | None  # median and 95th percentile, seconds
     dropped: int
+    note: str = ""  # what the start search found, when it ran
 
 
 def render_videos(folder: Path, frames: int, seed: int) -> tuple[list[str], FloatArray]:
@@ -88,16 +90,17 @@ def run_offline(files: list[str], truth: FloatArray) -> LiveRun:
 
 
 def run_live(files: list[str], truth: FloatArray, realtime: bool = True,
-             known_start: bool = True) -> LiveRun:
-    """The live loop over the videos at their pace (or every frame), from the true start or
-    from the start it searches."""
+             start: str = "true") -> LiveRun:
+    """The live loop over the videos at their pace (or every frame), from the ``"true"``
+    start, the start it searches (``"searched"``) or the robot ``"straight"``."""
     from apcc_graph.estimation.live import LiveEstimator, recording_frames
     from apcc_graph.frontend.recordings import video_streams
     from apcc_graph.io.robot_file import load_robot
 
     robot = load_robot(ROBOT_FILE)
     streams = video_streams(files)
-    live = LiveEstimator(robot, truth[0] if known_start else None, realtime=realtime)
+    theta0 = {"true": truth[0], "searched": None, "straight": np.zeros(truth.shape[1])}[start]
+    live = LiveEstimator(robot, theta0, realtime=realtime)
     finals, latencies = {}, []
     began = time.perf_counter()
     for est in live.run(recording_frames(streams, robot.camera_segments)):
@@ -108,14 +111,16 @@ def run_live(files: list[str], truth: FloatArray, realtime: bool = True,
     frames = np.array(sorted(finals))
     errors = np.array([finals[f] for f in frames]) - truth[frames]
     name = "live, at the videos' pace" if realtime else "live, every frame (not real time)"
-    name += "" if known_start else ", start searched"
+    name += "" if start == "true" else f", start {start}"
     return LiveRun(name, len(frames), len(truth), seconds, rms(errors),
                    (float(np.median(latencies)), float(np.percentile(latencies, 95))),
-                   live.dropped)
+                   live.dropped, live.start_search or "")
 
 
-def run_live_bench(frames: int = 600, seed: int = 1) -> tuple[list[LiveRun], float]:
-    """Render the videos, then every row; returns the rows and the rendering time."""
+def run_live_bench(frames: int = 600, seed: int = 1
+                   ) -> tuple[list[LiveRun], float, FloatArray]:
+    """Render the videos, then every row; returns the rows, the rendering time and the true
+    start (radians)."""
     with tempfile.TemporaryDirectory(prefix="apcc-live-") as tmp, \
             threadpool_limits(limits=1, user_api="blas"):
         began = time.perf_counter()
@@ -123,12 +128,14 @@ def run_live_bench(frames: int = 600, seed: int = 1) -> tuple[list[LiveRun], flo
         rendered = time.perf_counter() - began
         rows = [run_offline(files, truth), run_live(files, truth),
                 run_live(files, truth, realtime=False),
-                run_live(files, truth, realtime=False, known_start=False)]
-    return rows, rendered
+                run_live(files, truth, realtime=False, start="searched"),
+                run_live(files, truth, realtime=False, start="straight")]
+    return rows, rendered, truth[0]
 
 
-def format_live(rows: list[LiveRun], frames: int, rendered: float) -> str:
-    """The benchmark's table."""
+def format_live(rows: list[LiveRun], frames: int, rendered: float,
+                truth0: FloatArray | None = None) -> str:
+    """The benchmark's table (and the start each search found, beside ``truth0``)."""
     out = [f"live: 3 rendered 640x480 videos at {FPS:.0f} fps, {frames} frames "
            f"({frames / FPS:.0f} s; rendered in {rendered:.0f} s); RMS per segment against "
            "the truth over the frames each estimated (deg)", "",
@@ -142,4 +149,7 @@ def format_live(rows: list[LiveRun], frames: int, rendered: float) -> str:
             "smoothing; live: while the videos play); latency: median / 95th percentile from a "
             "frame's arrival to its estimate; targets: 30 per second, median latency at most "
             f"one frame ({1e3 / FPS:.0f} ms), the offline RMS"]
+    true = ("" if truth0 is None else
+            f" (true start {', '.join(f'{v:.2f}' for v in np.degrees(truth0))} deg)")
+    out += [f"{r.name}: {r.note}{true}" for r in rows if r.note]
     return "\n".join(out)
