@@ -168,3 +168,18 @@ def test_ctrl_c_while_moving_up_leaves_all_or_nothing(tmp_path: Path,
         for name in ("a.csv", "b.csv", "c.csv"):
             (staging / name).write_text(name)
     assert sorted(p.name for p in out.iterdir()) == ["a.csv", "b.csv", "c.csv"]
+
+
+def test_calibrate_render_force_never_replaces_the_current_folder(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from apcc_graph.cli import main
+
+    here = tmp_path / "here"
+    here.mkdir()
+    (here / "notes.txt").write_text("mine\n")
+    monkeypatch.chdir(here)
+    assert main(["calibrate", str(here), "--render", "--length", "0.4", "--k", "0.2",
+                 "--bends-deg", "30", "--force"]) == 1
+    assert "holds the current folder" in capsys.readouterr().err
+    assert [p.name for p in here.iterdir()] == ["notes.txt"]

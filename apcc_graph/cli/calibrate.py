@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> str:
 
 def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
     """``calibrate --render``: write a seeded synthetic image folder to ``path``."""
-    from apcc_graph.io.output_folder import check_writable, staged_folder
+    from apcc_graph.io.output_folder import check_writable, replace_refusal, staged_folder
     from apcc_graph.model.segment import Segment
     from apcc_graph.simulation.calibration_photos import write_calibration_images
 
@@ -136,6 +136,9 @@ def _render_calibration_images(args: argparse.Namespace, path: Path) -> str:
     if path.exists() and (not path.is_dir() or any(path.iterdir())) and not args.force:
         raise UserError(f"{path}: exists and is not empty; choose another PATH or add --force "
                         "(replaces it whole)")
+    refusal = replace_refusal(path) if path.is_dir() and args.force else None
+    if refusal is not None:
+        raise UserError(f"{path}: {refusal}: choose another PATH")
     check_writable(path)  # before rendering
     bends = [math.radians(v) for v in degree_list(
         args.bends_deg, "--bends-deg", ", e.g. -80,-40,0")]
