@@ -3,6 +3,7 @@ and the Dask path equal to the serial one."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -82,6 +83,11 @@ def test_a_rerun_skips_complete_outputs_and_redoes_the_rest(recordings: Path,
     assert [r.status for r in redo] == ["ok", "ok"]
     assert (out / "seq_2" / "theta.csv").read_text().startswith("frame,timestamp")
     assert not (out / "seq_2" / "notes.txt").exists()  # replaced whole, as --force says
+    shutil.rmtree(out / "seq_1")
+    (out / "seq_1").write_text("a file of the user's\n")  # not a folder: not replaced either
+    again = estimate_many(folders, out, "chain", {"theta0": np.zeros(3)}, workers=1)
+    assert again[0].status.startswith("failed: ") and "add --force" in again[0].status
+    assert (out / "seq_1").read_text() == "a file of the user's\n"
 
 
 def test_force_never_replaces_the_current_folder_as_a_sequences_output(

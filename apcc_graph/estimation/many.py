@@ -99,7 +99,9 @@ def estimate_one(sequence: str, out: str, method: str, options: dict[str, Any],
     from apcc_graph.io.output_folder import replace_refusal, staged_folder
 
     start = time.perf_counter()
-    existing = Path(out).is_dir() and any(Path(out).iterdir())
+    target = Path(out)
+    existing = (target.exists() or target.is_symlink()) and not (
+        target.is_dir() and not any(target.iterdir()))  # anything but an empty folder
     refusal = (replace_refusal(out, [sequence]) if redo
                else "exists and is not empty; add --force to replace it")
     if existing and refusal is not None:  # the user's own folder, not a run's outputs
