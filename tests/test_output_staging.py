@@ -183,3 +183,17 @@ def test_calibrate_render_force_never_replaces_the_current_folder(
                  "--bends-deg", "30", "--force"]) == 1
     assert "holds the current folder" in capsys.readouterr().err
     assert [p.name for p in here.iterdir()] == ["notes.txt"]
+
+
+def test_force_on_a_symlink_replaces_what_it_points_to(tmp_path: Path) -> None:
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "old.txt").write_text("old\n")
+    link = tmp_path / "out"
+    link.symlink_to(real)
+    check_writable(link)
+    with staged_folder(link, replace=True) as staging:
+        (staging / "new.txt").write_text("new\n")
+    assert link.is_symlink() and os.readlink(link) == str(real)
+    assert [p.name for p in real.iterdir()] == ["new.txt"]  # the old one replaced whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "real"]

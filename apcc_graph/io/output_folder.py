@@ -7,7 +7,8 @@ destination as it was; with ``replace`` an existing destination is swapped out o
 A destination that exists and is empty (a folder, a symlink to one, a mount point, a folder
 whose parent cannot be written) is kept as it is, with its owner, mode and ACLs: the staging
 folder is then made inside it (``.apcc-graph.partial-XXXX``), and its contents are moved up
-into it when complete.
+into it when complete. A symlink to a folder stays a symlink: the folder it points to is
+written (or replaced), as above.
 
 Before any computing, :func:`check_writable` tells whether a destination can be written at all.
 """
@@ -41,6 +42,12 @@ def staging_folders(destination: str | Path) -> list[Path]:
     return beside + inside
 
 
+def _followed(path: Path) -> Path:
+    """The folder a symlink ``path`` points to (which is then written, the link kept), else
+    ``path``."""
+    return path.resolve() if path.is_symlink() and path.is_dir() else path
+
+
 def _is_empty_folder(path: Path) -> bool:
     """Whether ``path`` is an existing folder (or a symlink to one) that holds nothing."""
     try:
@@ -71,9 +78,11 @@ def check_writable(path: str | Path, folder: bool = True) -> Path:
         raise OSError(f"{path}: is a file, expected a folder to write into")
     if not folder and path.is_dir():
         raise OSError(f"{path}: is a folder, not a file")
-    # an empty folder is written into (see staged_folder), any other beside
-    parent = path.absolute() if folder and _is_empty_folder(path) else _nearest_existing(
-        path.parent)
+    # an empty folder is written into (see staged_folder), any other beside (the folder a
+    # symlink points to: beside that)
+    target = _followed(path.absolute()) if folder else path
+    parent = target if folder and _is_empty_folder(target) else _nearest_existing(
+        target.parent)
     if not parent.is_dir():
         raise OSError(f"{path}: cannot be created: {parent} is a file, not a folder")
     try:
@@ -122,7 +131,8 @@ def staged_folder(destination: str | Path, replace: bool = False) -> Iterator[Pa
         OSError: the staging folder could not be made or moved into place (the message names
             ``destination``), or ``destination`` holds something and ``replace`` is not given.
     """
-    destination = Path(os.path.abspath(destination))  # "." and ".." have no name to stage
+    given = Path(os.path.abspath(destination))  # "." and ".." have no name to stage
+    destination = _followed(given)
     inside = _is_empty_folder(destination)  # kept as it is (owner, mode, a symlink, a mount)
     try:
         if inside:
@@ -133,7 +143,7 @@ def staged_folder(destination: str | Path, replace: bool = False) -> Iterator[Pa
                                             dir=destination.parent))
         os.chmod(staging, folder_mode())
     except OSError as exc:
-        raise write_error(exc, destination) from exc
+        raise write_error(exc, given) from exc
     try:
         yield staging
         check_interrupted()
@@ -146,9 +156,9 @@ def staged_folder(destination: str | Path, replace: bool = False) -> Iterator[Pa
         if exc.filename is not None and str(exc.filename).startswith(str(staging)):
             # name the file as it would be in the destination, not in the staging folder
             inside = Path(exc.filename).relative_to(staging)
-            raise OSError(exc.errno, exc.strerror, str(destination / inside)) from exc
+            raise OSError(exc.errno, exc.strerror, str(given / inside)) from exc
         if str(staging) in str(exc):  # a message that names a file in its own words
-            raise OSError(str(exc).replace(str(staging), str(destination))) from exc
+            raise OSError(str(exc).replace(str(staging), str(given))) from exc
         raise
     except BaseException:
         _remove(staging)
