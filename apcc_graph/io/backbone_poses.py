@@ -11,7 +11,6 @@ Arc lengths are grouped as distinct values after rounding to 1e-6 m.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +21,9 @@ from numpy.typing import ArrayLike, NDArray
 from apcc_graph.io.atomic import atomic_write_text
 from apcc_graph.io.csv_table import CsvTable, format_number, read_table
 from apcc_graph.io.poses import quaternion_for_file
-from apcc_graph.io.units import UnitsWarning
+from apcc_graph.io.quaternion_order import ORDER_MARGIN as ORDER_MARGIN
+from apcc_graph.io.quaternion_order import arc_misfit as arc_misfit
+from apcc_graph.io.quaternion_order import check_quaternion_order
 from apcc_graph.model.arrays import FloatArray
 
 BACKBONE_COLUMNS = ("timestamp", "arclength", "x", "y", "z", "qw", "qx", "qy", "qz")
@@ -173,66 +174,8 @@ def load_backbone_poses(path: str | Path) -> BackbonePoses:
     swapped = poses.copy()
     scalar_last = (quat / norm[:, None])[:, [3, 0, 1, 2]]  # the columns read as x, y, z, w
     swapped[sample, marker] = _transforms(table.values[:, 2:5], scalar_last)
-    _check_quaternion_order(path, arc[first], poses, swapped, present)
+    check_quaternion_order(path, arc[first], poses, swapped, present)
     return BackbonePoses(time[new], arc[first], poses, present, str(path))
-
-
-ORDER_MARGIN = 1.5
-"""The quaternions are said to look scalar-last when read so they bend the backbone into arcs
-this many times closer to the measured positions than read as written."""
-
-
-def arc_misfit(arclengths: FloatArray, world_T_marker: FloatArray, present: NDArray[np.bool_]
-               ) -> tuple[float, int]:
-    """How far the markers' rotations are from bending the backbone as circular arcs: the RMS
-    distance (metres) between each marker's measured position in the frame of the marker before
-    it and the end of the constant-curvature arc of their arc-length difference that the relative
-    rotation describes (its bend about an axis across the backbone); and how many marker pairs
-    it is over. Marker offsets of a few millimetres and degrees, and a real backbone's deviation
-    from an arc, keep it at millimetres; rotations read in the wrong quaternion order do not
-    follow the positions."""
-    errors = []
-    for a in range(len(arclengths) - 1):
-        both = present[:, a] & present[:, a + 1]
-        if not both.any():
-            continue
-        base, end = world_T_marker[both, a], world_T_marker[both, a + 1]
-        rel = np.einsum("nji,njk->nik", base[:, :3, :3], end[:, :3, :3])
-        offset = np.einsum("nji,nj->ni", base[:, :3, :3], end[:, :3, 3] - base[:, :3, 3])
-        # the bend: rotation angle and axis projected across the backbone (the local xy plane)
-        axis = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0],
-                         np.zeros(len(rel))], axis=1)
-        sin = 0.5 * np.linalg.norm(axis, axis=1)
-        cos = np.clip(0.5 * (np.trace(rel, axis1=1, axis2=2) - 1.0), -1.0, 1.0)
-        theta = np.arctan2(sin, cos)
-        toward = np.cross(axis, [0.0, 0.0, 1.0]) / np.maximum(2.0 * sin, 1e-12)[:, None]
-        small = theta < 1e-6
-        across = np.where(small, theta / 2.0, (1.0 - np.cos(theta)) / np.where(small, 1.0, theta))
-        along = np.where(small, 1.0, np.sin(theta) / np.where(small, 1.0, theta))
-        length = arclengths[a + 1] - arclengths[a]
-        arc_end = length * (across[:, None] * toward + along[:, None] * [0.0, 0.0, 1.0])
-        errors.append(np.linalg.norm(arc_end - offset, axis=1))
-    if not errors:
-        return float("nan"), 0
-    every = np.concatenate(errors)
-    return float(np.sqrt(np.mean(every ** 2))), len(every)
-
-
-def _check_quaternion_order(path: str | Path, arclengths: FloatArray, poses: FloatArray,
-                            swapped: FloatArray, present: NDArray[np.bool_]) -> None:
-    """Warn (:class:`~apcc_graph.io.units.UnitsWarning`) when the quaternion columns read
-    scalar-last describe the backbone's bends far better than read as the format says."""
-    written, pairs = arc_misfit(arclengths, poses, present)
-    other, _ = arc_misfit(arclengths, swapped, present)
-    span = float(arclengths[-1] - arclengths[0]) if len(arclengths) > 1 else 0.0
-    if pairs < 10 or not other < 0.1 * span or not written > ORDER_MARGIN * other:
-        return
-    warnings.warn(f"{path}: the quaternion columns qw,qx,qy,qz look written in the order "
-                  f"x, y, z, w: read so, the markers' rotations bend the backbone into arcs "
-                  f"{other * 1e3:.1f} mm RMS from the measured positions, read as written "
-                  f"(w, x, y, z) {written * 1e3:.1f} mm; the format's order is w, x, y, z: "
-                  "move the w column first (calibrations from this file are wrong otherwise)",
-                  UnitsWarning, stacklevel=2)
 
 
 def save_backbone_poses(poses: BackbonePoses, path: str | Path) -> None:
