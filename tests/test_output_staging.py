@@ -197,3 +197,17 @@ def test_force_on_a_symlink_replaces_what_it_points_to(tmp_path: Path) -> None:
     assert link.is_symlink() and os.readlink(link) == str(real)
     assert [p.name for p in real.iterdir()] == ["new.txt"]  # the old one replaced whole
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "real"]
+
+
+def test_force_refuses_a_mount_point_that_holds_something(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from apcc_graph.io.output_folder import replace_refusal
+
+    mount = tmp_path / "mnt"
+    mount.mkdir()
+    real = os.path.ismount
+    monkeypatch.setattr(output_folder.os.path, "ismount",
+                        lambda path: Path(path) == mount or real(path))
+    assert replace_refusal(mount) is None  # empty: written into, see above
+    (mount / "old.txt").write_text("old\n")
+    assert "mount point" in (replace_refusal(mount) or "")

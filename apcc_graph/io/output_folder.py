@@ -98,9 +98,13 @@ def check_writable(path: str | Path, folder: bool = True) -> Path:
 
 def replace_refusal(path: str | Path, inputs: Sequence[str | Path] = ()) -> str | None:
     """Why the existing folder ``path`` must not be replaced whole (``--force``), or ``None``
-    when it may: it is or holds the current folder, is the home folder, or is or holds one of
-    ``inputs`` (a replaced folder is deleted). The message follows ``path``'s name."""
+    when it may: it is a mount point that holds something (it cannot be renamed), is or holds
+    the current folder, is the home folder, or is or holds one of ``inputs`` (a replaced
+    folder is deleted). The message follows ``path``'s name."""
     resolved, here = Path(path).resolve(), Path.cwd().resolve()
+    if os.path.ismount(resolved) and not _is_empty_folder(resolved):
+        return ("is a mount point, which cannot be replaced whole (only written into when "
+                "empty): empty it")
     if resolved in (here, *here.parents, Path.home().resolve()):
         return ("--force would replace this folder whole, and it holds the current folder "
                 "(or is your home)")
