@@ -2,11 +2,12 @@
 summary table, in process or on a Dask cluster.
 
 A sequence's outputs are complete when its folder holds ``done.txt``, written last (after
-``theta.csv`` and the TUM files): a re-run skips those sequences. Each sequence's folder is
-written whole (in a staging folder beside it, moved into place when complete), so a run
-killed or interrupted half-way leaves the sequences it finished complete and nothing of the
-one it was on. A sequence that fails is reported in the
-summary with its one-line error and does not stop the others.
+``theta.csv`` and the TUM files): a re-run skips those sequences. A sequence's folder that
+holds anything else is not replaced without ``redo`` (it is that sequence's failure). Each
+sequence's folder is written whole (in a staging folder, moved into place when complete), so a
+run killed or interrupted half-way leaves the sequences it finished complete and nothing of the
+one it was on. A sequence that fails is reported in the summary with its one-line error and
+does not stop the others.
 
 Dask (``pip install "apcc-graph[dask]"``) is imported only when more than one worker is asked
 for; one worker runs everything in this process.
