@@ -273,14 +273,19 @@ def _indeterminate_gtsam_error() -> RuntimeError:
     return caught.value
 
 
-def test_a_gtsam_failure_is_one_line_naming_the_frame(
-        short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+@pytest.fixture
+def failing_gtsam(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every estimate fails with a real gtsam error (an indeterminate system near frame 42)."""
     error = _indeterminate_gtsam_error()
 
     def estimate(*args: object, **kwargs: object) -> None:
         raise error
 
     monkeypatch.setattr("apcc_graph.estimation.methods.estimate", estimate)
+
+
+def test_a_gtsam_failure_is_one_line_naming_the_frame(short, tmp_path: Path, failing_gtsam,
+                                                      capsys) -> None:
     folder, theta0 = short
     assert main(["estimate", str(folder), "--method", "smoother", "--out",
                  str(tmp_path / "est"), theta0]) == 1
@@ -296,13 +301,7 @@ def test_a_gtsam_failure_is_one_line_naming_the_frame(
 
 
 def test_a_gtsam_failure_in_a_many_sequence_run_is_that_sequence_s_status(
-        short, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
-    error = _indeterminate_gtsam_error()
-
-    def estimate(*args: object, **kwargs: object) -> None:
-        raise error
-
-    monkeypatch.setattr("apcc_graph.estimation.methods.estimate", estimate)
+        short, tmp_path: Path, failing_gtsam, capsys) -> None:
     folder, theta0 = short
     assert main(["estimate", str(folder.parent), "--workers", "1", "--out",
                  str(tmp_path / "out"), theta0]) == 0

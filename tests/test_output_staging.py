@@ -35,11 +35,10 @@ class _NativeThread(threading.Thread):
         self.sent.wait(timeout=30.0)
 
 
-def test_ctrl_c_between_the_two_renames_leaves_one_output_whole(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / "old.txt").write_text("old\n")
+@pytest.fixture
+def interrupted_renames(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    """The sources of every ``os.rename`` the staging code makes; a SIGINT arrives (from a
+    thread started beforehand) right after the first one."""
     real = os.rename
     calls: list[Any] = []
     native = _NativeThread()
@@ -48,10 +47,20 @@ def test_ctrl_c_between_the_two_renames_leaves_one_output_whole(
     def rename(source: Any, target: Any) -> None:
         real(source, target)
         calls.append(source)
-        if len(calls) == 1:  # the old output has just been moved aside
+        if len(calls) == 1:
             native.interrupt()
 
     monkeypatch.setattr(output_folder.os, "rename", rename)
+    return calls
+
+
+def test_ctrl_c_between_the_two_renames_leaves_one_output_whole(
+        tmp_path: Path, interrupted_renames: list[Any]) -> None:
+    """The SIGINT comes just after the old output was moved aside."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("old\n")
+    calls = interrupted_renames
     with pytest.raises(KeyboardInterrupt), staged_folder(out, replace=True) as staging:
         (staging / "new.txt").write_text("new\n")
     assert len(calls) == 2  # both renames were done before the interruption was raised
@@ -149,21 +158,10 @@ def test_a_symlink_to_an_empty_folder_stays_a_symlink(tmp_path: Path) -> None:
 
 
 def test_ctrl_c_while_moving_up_leaves_all_or_nothing(tmp_path: Path,
-                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+                                                      interrupted_renames: list[Any]) -> None:
+    """The SIGINT comes just after the first of three files was moved up."""
     out = tmp_path / "out"
     out.mkdir()
-    real = os.rename
-    calls: list[Any] = []
-    native = _NativeThread()
-    native.start()
-
-    def rename(source: Any, target: Any) -> None:
-        real(source, target)
-        calls.append(source)
-        if len(calls) == 1:  # the first of three files has just been moved up
-            native.interrupt()
-
-    monkeypatch.setattr(output_folder.os, "rename", rename)
     with pytest.raises(KeyboardInterrupt), staged_folder(out) as staging:
         for name in ("a.csv", "b.csv", "c.csv"):
             (staging / name).write_text(name)
