@@ -1,12 +1,12 @@
 """Output folders written whole: everything goes into a hidden staging folder beside the
-destination (``.NAME.partial-XXXX`` in the same parent), which is renamed into place only when
+destination (``.NAME.partial-<random>`` in the same parent), which is renamed into place only when
 complete. A failure, a full disk or Ctrl-C removes the staging folder and leaves the
 destination as it was; with ``replace`` an existing destination is swapped out only at the end
 (renamed aside, the new one renamed in, the old one deleted), so the old and the new never mix.
 
 A destination that exists and is empty (a folder, a symlink to one, a mount point, a folder
 whose parent cannot be written) is kept as it is, with its owner, mode and ACLs: the staging
-folder is then made inside it (``.apcc-graph.partial-XXXX``), and its contents are moved up
+folder is then made inside it (``.apcc-graph.partial-<random>``), and its contents are moved up
 into it when complete. A symlink to a folder stays a symlink: the folder it points to is
 written (or replaced), as above.
 
@@ -26,10 +26,10 @@ from apcc_graph.io.atomic import folder_mode, write_error
 from apcc_graph.io.interrupts import check_interrupted, deferring_interrupts
 
 STAGING = ".partial-"
-"""What the name of a staging folder holds (``.NAME.partial-XXXX``)."""
+"""What the name of a staging folder holds (``.NAME.partial-<random>``)."""
 
 INSIDE = f".apcc-graph{STAGING}"
-"""The name of a staging folder inside an empty destination (``.apcc-graph.partial-XXXX``)."""
+"""The name of a staging folder inside an empty destination (``.apcc-graph.partial-<random>``)."""
 
 
 def staging_folders(destination: str | Path) -> list[Path]:
