@@ -7,12 +7,14 @@ the rest of the track gets a new point, and whatever the old observations said a
 is lost to the new frames. The cut raises the Cramer-Rao bound of the fixed lag
 (``docs/estimation.md``, "The bound of a fixed-lag smoother"), and the estimate drifts. A track
 that outlives the window is therefore promoted to a *landmark*: its point becomes a ``Point3``
-variable (:func:`landmark_key`) that the smoother keeps while the track is seen and
+variable (:func:`~apcc_graph.factors.keys.point_key`) that the smoother keeps while the track
+is seen and
 marginalises like a frame afterwards, so what its old observations said carries over to the
 frames still in the window.
 
 The landmarks' observations are gtsam's C++ ``GenericProjectionFactorCal3_S2`` between the
-point and a ``Pose3`` variable per frame and camera, ``world_T_cam`` (:func:`camera_pose_key`),
+point and a ``Pose3`` variable per frame and camera, ``world_T_cam``
+(:func:`~apcc_graph.factors.keys.camera_pose_key`),
 one factor per observation: each row then depends on its own point only, the structure sparse
 elimination needs (a Python factor over many points would make the smoother's cliques dense),
 and C++ factors cost no Python time. The pixel is the undistorted one (``fx x + cx``,
@@ -39,24 +41,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.keys import camera_pose_key, frame_key, point_key
 from apcc_graph.factors.kinematic import vee
-from apcc_graph.factors.projection import frame_key
 from apcc_graph.model.arrays import FloatArray
-
-MAX_CAMERAS = 64
-"""Camera-pose keys pack the camera into the symbol's index: at most this many cameras."""
-
-
-def landmark_key(landmark: int) -> int:
-    """The graph key of landmark ``landmark``'s world point (a ``Point3``, metres)."""
-    return int(gtsam.symbol("l", landmark))
-
-
-def camera_pose_key(frame: int, camera: int) -> int:
-    """The graph key of camera ``camera``'s ``world_T_cam`` at frame ``frame`` (a ``Pose3``)."""
-    if not 0 <= camera < MAX_CAMERAS:
-        raise ValueError(f"camera {camera}: expected 0 <= camera < {MAX_CAMERAS}")
-    return int(gtsam.symbol("p", frame * MAX_CAMERAS + camera))
 
 
 def camera_pose_residual(X: gtsam.Pose3, thetas: FloatArray, chain: CameraChain, frame: int,
@@ -91,8 +78,8 @@ def camera_pose_factor(frame: int, camera: int, chain: CameraChain, n_segments: 
     """Tie camera ``camera``'s pose variable at ``frame`` to that frame's angles.
 
     Args:
-        frame, camera: which pose (:func:`camera_pose_key`) and angles
-            (:func:`~apcc_graph.factors.projection.frame_key`).
+        frame, camera: which pose (:func:`~apcc_graph.factors.keys.camera_pose_key`) and angles
+            (:func:`~apcc_graph.factors.keys.frame_key`).
         chain: the camera's chain (its base poses cover ``frame``).
         n_segments: the dimension of the frame's vector (the robot's
             :attr:`~apcc_graph.model.parameterisation.Bending.dim`).
@@ -126,7 +113,8 @@ def observation_factors(frames: NDArray[np.int64], camera: int,
     Args:
         frames: ``(N,)`` each observation's frame.
         camera: the camera.
-        landmarks: ``(N,)`` each observation's landmark (:func:`landmark_key`).
+        landmarks: ``(N,)`` each observation's point number
+            (:func:`~apcc_graph.factors.keys.point_key`).
         xy: ``(N, 2)`` undistorted normalised image coordinates.
         calibration: the camera's pinhole intrinsics (``fx, fy, 0, cx, cy``).
         sigma_px: the pixel noise (pixels).
@@ -138,5 +126,5 @@ def observation_factors(frames: NDArray[np.int64], camera: int,
     for f, lm, (x, y) in zip(frames.tolist(), landmarks.tolist(), xy.tolist(), strict=True):
         out.append(gtsam.GenericProjectionFactorCal3_S2(
             gtsam.Point2(fx * x + cx, fy * y + cy), noise, camera_pose_key(f, camera),
-            landmark_key(lm), calibration))
+            point_key(camera, lm), calibration))
     return out

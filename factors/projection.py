@@ -37,6 +37,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.keys import calibration_key, frame_key, mount_key
 from apcc_graph.factors.reduced_system import (
     ReducedSystem,
     reduced_system,
@@ -46,23 +47,6 @@ from apcc_graph.factors.reduced_system import (
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.segment import calibrated
-
-
-def frame_key(frame: int) -> int:
-    """The graph key of frame ``frame``'s vector (its bends, in the robot's parameterisation)."""
-    return int(gtsam.symbol("x", frame))
-
-
-def calibration_key(segment: int) -> int:
-    """The graph key of segment ``segment``'s ``(k, delta_max)`` (a ``Vector2``; radians for
-    ``delta_max``) when self-calibrating."""
-    return int(gtsam.symbol("c", segment))
-
-
-def mount_key(camera: int) -> int:
-    """The graph key of camera ``camera``'s mounting ``tip_T_cam`` (a ``Pose3``; metres) when
-    calibrating the mounts."""
-    return int(gtsam.symbol("m", camera))
 
 
 def compress(H: FloatArray, g: FloatArray, cost: float) -> tuple[FloatArray, FloatArray]:

@@ -6,19 +6,21 @@ from __future__ import annotations
 import gtsam
 import pytest
 
-from apcc_graph.estimation.failures import gtsam_failure, is_gtsam_error, key_name
+from apcc_graph.estimation.failures import gtsam_failure, is_gtsam_error
+from apcc_graph.factors.keys import describe
 
 
 @pytest.mark.parametrize("key, name", [
     (gtsam.symbol("x", 42), "frame 42's bends"),
     (gtsam.symbol("t", 7 * 64 + 2), "frame 7's segment 3 tip"),
-    (gtsam.symbol("l", 1 * 2**32 + 905), "camera 2's track 905 point"),
+    (gtsam.symbol("l", 1 * 2**32 + 905), "camera 2's point 905"),
     (gtsam.symbol("c", 0), "segment 1's k and delta_max"),
     (gtsam.symbol("m", 2), "camera 3's mount"),
+    (gtsam.symbol("p", 9 * 64 + 1), "frame 9's camera 2 pose"),
     (gtsam.symbol("q", 5), "variable q5"),
 ])
 def test_a_key_is_named_for_what_it_stands_for(key: int, name: str) -> None:
-    assert key_name(key) == name
+    assert describe(key) == name
 
 
 def test_a_gtsam_error_is_one_line_naming_its_variable() -> None:

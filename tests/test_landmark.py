@@ -14,14 +14,12 @@ from hypothesis import strategies as st
 from apcc_graph import Segment
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.factors.camera_chain import CameraChain
+from apcc_graph.factors.keys import camera_pose_key, frame_key, point_key
 from apcc_graph.factors.landmark import (
     camera_pose_factor,
-    camera_pose_key,
     camera_pose_residual,
-    landmark_key,
     observation_factors,
 )
-from apcc_graph.factors.projection import frame_key
 from apcc_graph.model.parameterisation import Bending
 
 SEGMENTS = (Segment(0.3, k=0.2, delta_max=0.1, theta_max=1.0),
@@ -82,7 +80,7 @@ def test_camera_pose_factor_blocks_pad_the_segments_above_the_camera() -> None:
 
 def test_keys_are_distinct() -> None:
     keys = {camera_pose_key(f, c) for f in range(50) for c in range(3)}
-    keys |= {landmark_key(i) for i in range(150)} | {frame_key(f) for f in range(50)}
+    keys |= {point_key(0, i) for i in range(150)} | {frame_key(f) for f in range(50)}
     assert len(keys) == 50 * 3 + 150 + 50
     with pytest.raises(ValueError, match="camera"):
         camera_pose_key(0, 64)
@@ -99,10 +97,10 @@ def test_projection_factors_vanish_at_the_truth() -> None:
     values = gtsam.Values()
     values.insert(camera_pose_key(4, 2), pose)
     for i, p in enumerate(points):
-        values.insert(landmark_key(i), gtsam.Point3(*p))
+        values.insert(point_key(2, i), gtsam.Point3(*p))
     assert [f.keys()[0] for f in factors] == [camera_pose_key(4, 2)] * 6
     assert max(f.error(values) for f in factors) < 1e-18
-    values.update(landmark_key(0), gtsam.Point3(*(points[0] + np.array([0.01, 0.0, 0.0]))))
+    values.update(point_key(2, 0), gtsam.Point3(*(points[0] + np.array([0.01, 0.0, 0.0]))))
     assert factors[0].error(values) > 0.1  # a shifted point shows in pixels (~2 px)
 
 

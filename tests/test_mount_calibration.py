@@ -25,12 +25,8 @@ from apcc_graph.estimation.model_calibration import (
 from apcc_graph.estimation.options import BatchOptions
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.factors.camera_chain import camera_poses, mount_derivatives
-from apcc_graph.factors.projection import (
-    ProjectionFactor,
-    calibration_key,
-    frame_key,
-    mount_key,
-)
+from apcc_graph.factors.keys import calibration_key, frame_key, mount_key
+from apcc_graph.factors.projection import ProjectionFactor
 from apcc_graph.factors.reduced_system import reduced_system
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence

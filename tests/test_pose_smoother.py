@@ -14,16 +14,15 @@ from helpers import fast_stretch_replay
 
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.fixed_lag import FixedLagISAM2
-from apcc_graph.estimation.graph import frame_key
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.pose_batch import point_key, tip_key
 from apcc_graph.estimation.pose_points import PosePoints
-from apcc_graph.estimation.pose_smoother import PoseSmoother, elimination_group
+from apcc_graph.estimation.pose_smoother import PoseSmoother
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.estimation.window import RestartWarning
 from apcc_graph.evaluation.tip_floor import tip_errors
+from apcc_graph.factors.keys import elimination_group, frame_key, point_key, tip_key
 from apcc_graph.model.parameterisation import Bending
 
 MODEL_SIGMA = (1e-3, math.radians(0.5))

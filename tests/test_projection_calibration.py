@@ -15,13 +15,8 @@ from hypothesis import strategies as st
 
 from apcc_graph import Robot, Segment, TipCamera
 from apcc_graph.factors.camera_chain import CameraChain, camera_poses
-from apcc_graph.factors.projection import (
-    ProjectionFactor,
-    build_observations,
-    calibrated,
-    calibration_key,
-    frame_key,
-)
+from apcc_graph.factors.keys import calibration_key, frame_key
+from apcc_graph.factors.projection import ProjectionFactor, build_observations, calibrated
 from apcc_graph.factors.reduced_system import reduced_system
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.simulation.simulator import simulate

@@ -16,12 +16,12 @@ from hypothesis import strategies as st
 
 from apcc_graph import Robot, Segment, TipCamera
 from apcc_graph.factors.camera_chain import CameraChain, camera_poses
+from apcc_graph.factors.keys import frame_key
 from apcc_graph.factors.projection import (
     ProjectionFactor,
     build_observations,
     chunk_tracks,
     compress,
-    frame_key,
 )
 from apcc_graph.factors.reduced_system import reduced_system
 from apcc_graph.factors.track_points import MIN_DEPTH, TrackObservations

@@ -14,9 +14,10 @@ import pytest
 
 from apcc_graph.bench.smoother import ROBOT_FILE
 from apcc_graph.estimation.blackout import MIN_SIGMA, Reacquisition
-from apcc_graph.estimation.graph import frame_key, prior_factors
+from apcc_graph.estimation.graph import prior_factors
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.window import SmootherFrame, Window
+from apcc_graph.factors.keys import frame_key
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.parameterisation import Bending
 

@@ -26,7 +26,8 @@ from apcc_graph.estimation.options import BatchOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.evaluation.sequence_bound import sequence_bound
-from apcc_graph.factors.projection import ProjectionFactor, frame_key
+from apcc_graph.factors.keys import frame_key
+from apcc_graph.factors.projection import ProjectionFactor
 from apcc_graph.factors.reduced_system import reduced_system
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms

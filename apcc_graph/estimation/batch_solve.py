@@ -22,7 +22,6 @@ from apcc_graph.estimation.graph import (
     CameraTerms,
     calibration_factors,
     camera_chain,
-    frame_key,
     mount_factors,
     observed_cameras,
     prior_factors,
@@ -32,6 +31,7 @@ from apcc_graph.estimation.graph import (
 from apcc_graph.estimation.model_calibration import ModelCalibration
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.robust import gnc_start
+from apcc_graph.factors.keys import frame_key
 from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import re
 
-import gtsam
+from apcc_graph.factors.keys import describe
 
 GTSAM_SIGNS = ("indeterminant linear system", "indeterminate linear system", "variableindex",
                "cheirality", "key does not exist", "valueskeydoesnotexist",
@@ -16,28 +16,6 @@ and ``ValueError``). The word "gtsam" alone is not one: the library's own messag
 gtsam too, and must reach the user as they are."""
 
 _KEY = re.compile(r"\b\d{15,20}\b")
-_SEGMENTS_PER_FRAME = 64  # as apcc_graph.estimation.pose_batch.MAX_SEGMENTS
-
-
-def key_name(key: int) -> str:
-    """What the graph variable ``key`` is, e.g. ``"frame 42's bends"``."""
-    symbol = gtsam.Symbol(key)
-    letter, index = chr(symbol.chr()), symbol.index()
-    if letter == "x":
-        return f"frame {index}'s bends"
-    if letter == "t":
-        frame, segment = divmod(index, _SEGMENTS_PER_FRAME)
-        return f"frame {frame}'s segment {segment + 1} tip"
-    if letter == "l":
-        camera, track = divmod(index, 2**32)
-        return f"camera {camera + 1}'s track {track} point"
-    if letter == "c":
-        return f"segment {index + 1}'s k and delta_max"
-    if letter == "m":
-        return f"camera {index + 1}'s mount"
-    return f"variable {letter}{index}"
-
-
 def is_gtsam_error(error: BaseException) -> bool:
     """Whether ``error`` comes from gtsam (judged by its message)."""
     text = str(error).lower()
@@ -60,7 +38,7 @@ def _what_and_hint(text: str) -> tuple[str, str]:
 def _near(text: str) -> str:
     """`` near <the variable>`` for the first graph key in ``text``, or nothing."""
     keys = [int(k) for k in _KEY.findall(text)]
-    return f" near {key_name(keys[0])}" if keys else ""
+    return f" near {describe(keys[0])}" if keys else ""
 
 
 def gtsam_cause(error: BaseException) -> str:

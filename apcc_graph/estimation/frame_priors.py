@@ -15,9 +15,10 @@ import math
 import gtsam
 import numpy as np
 
-from apcc_graph.estimation.graph import frame_key, limit_factor
+from apcc_graph.estimation.graph import limit_factor
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.window import Window
+from apcc_graph.factors.keys import frame_key
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 

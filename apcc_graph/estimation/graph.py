@@ -1,6 +1,6 @@
 """Factor-graph building shared by the batch optimiser and the fixed-lag smoother.
 
-Variables: one vector per frame, key :func:`apcc_graph.factors.projection.frame_key`, in the
+Variables: one vector per frame, key :func:`apcc_graph.factors.keys.frame_key`, in the
 robot's parameterisation (:class:`~apcc_graph.model.parameterisation.Bending`): the ``S``
 angles in fixed bending planes (a planar robot), or the ``2 S`` bending-vector components
 ``(u_0, v_0, u_1, v_1, ...)`` (radians). Factors (``docs/estimation.md``):
@@ -24,16 +24,14 @@ from numpy.typing import NDArray
 from apcc_graph.estimation.image_motion import motion_clock
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.robust import gnc_tls_weights
+from apcc_graph.factors.keys import calibration_key, frame_key, mount_key
 from apcc_graph.factors.projection import (
     CameraChain,
     ProjectionFactor,
     TrackObservations,
     build_observations,
     calibrated,
-    calibration_key,
     chunk_tracks,
-    frame_key,
-    mount_key,
 )
 from apcc_graph.factors.track_points import cut_tracks
 from apcc_graph.model.arrays import FloatArray
@@ -124,9 +122,9 @@ class CameraTerms:
         n_segments: the dimension of a frame's vector (the parameterisation's ``dim``).
         frames_per_chunk: see :func:`apcc_graph.factors.projection.chunk_tracks`.
         calibrate: the factors also depend on the segments' ``(k, delta_max)`` variables
-            (:func:`apcc_graph.factors.projection.calibration_key`).
+            (:func:`apcc_graph.factors.keys.calibration_key`).
         mount: the factors also depend on the camera's mounting
-            (:func:`apcc_graph.factors.projection.mount_key`).
+            (:func:`apcc_graph.factors.keys.mount_key`).
     """
 
     def __init__(self, obs: TrackObservations, chain: CameraChain, n_segments: int,
@@ -248,7 +246,7 @@ def thetas_from(values: gtsam.Values, frames: Iterable[int]) -> FloatArray:
 def calibration_factors(robot: Robot, sigmas: tuple[float, float]
                         ) -> list[gtsam.NonlinearFactor]:
     """Self-calibration priors: each segment's ``(k, delta_max)`` variable
-    (:func:`~apcc_graph.factors.projection.calibration_key`) around the robot's values, with
+    (:func:`~apcc_graph.factors.keys.calibration_key`) around the robot's values, with
     standard deviations ``sigmas = (k sigma, delta_max sigma in radians)``."""
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
     return [gtsam.PriorFactorVector(calibration_key(j), np.array([s.k, s.delta_max]), noise)
@@ -258,7 +256,7 @@ def calibration_factors(robot: Robot, sigmas: tuple[float, float]
 def mount_factors(robot: Robot, cameras: Iterable[int], sigmas: tuple[float, float]
                   ) -> list[gtsam.NonlinearFactor]:
     """Mount-calibration priors: each of ``cameras``' mounting
-    (:func:`~apcc_graph.factors.projection.mount_key`, a ``Pose3``) around the robot's
+    (:func:`~apcc_graph.factors.keys.mount_key`, a ``Pose3``) around the robot's
     ``tip_T_cam``, with standard deviations ``sigmas = (rotation in radians, translation in
     metres)`` on each axis of the camera frame."""
     rot, pos = (float(v) for v in sigmas)

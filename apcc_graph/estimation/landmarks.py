@@ -32,12 +32,8 @@ from numpy.typing import NDArray
 
 from apcc_graph.estimation.initial_guess import FrameRows
 from apcc_graph.estimation.robust import enough_rows, gnc_tls_weights
-from apcc_graph.factors.landmark import (
-    camera_pose_factor,
-    camera_pose_key,
-    landmark_key,
-    observation_factors,
-)
+from apcc_graph.factors.keys import camera_pose_key, point_key
+from apcc_graph.factors.landmark import camera_pose_factor, observation_factors
 from apcc_graph.factors.projection import CameraChain, robust_residual_norms
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray
@@ -155,7 +151,7 @@ class Landmarks:
         noise = gtsam.noiseModel.Isotropic.Sigma(3, self.prior_sigma)
         for i in keep.tolist():
             piece, point = int(obs.ids[i]), points[i]
-            key = landmark_key(piece)
+            key = point_key(cam, piece)
             add.values.insert(key, gtsam.Point3(*point))
             add.graph.add(gtsam.PriorFactorPoint3(key, gtsam.Point3(*point), noise))
             add.stamps[key] = t
@@ -174,7 +170,7 @@ class Landmarks:
         """Frame ``f``'s observations of landmarks ``pieces`` (judged by the initial guess:
         ``weights`` 0 for an outlier)."""
         for piece in pieces.tolist():
-            add.stamps[landmark_key(piece)] = t
+            add.stamps[point_key(cam, piece)] = t
             self._seen[piece] = t
         good = weights > 0.0
         if not good.any():
@@ -186,10 +182,11 @@ class Landmarks:
 
     def update_points(self, estimate: gtsam.Values) -> None:
         """Take the landmarks' points from the smoother's estimate."""
-        for piece in self.points:
-            key = landmark_key(piece)
-            if estimate.exists(key):
-                self.points[piece] = np.asarray(estimate.atPoint3(key), dtype=float)
+        for cam, of in self._of.items():
+            for piece in of.values():
+                key = point_key(cam, piece)
+                if estimate.exists(key):
+                    self.points[piece] = np.asarray(estimate.atPoint3(key), dtype=float)
 
     def _ensure_pose(self, add: Additions, g: int, cam: int) -> None:
         """Camera ``cam``'s pose variable at frame ``g``, tied to the frame's angles, created

@@ -3,8 +3,8 @@
 "Self-calibration").
 
 Variables: a ``Vector2`` ``(k, delta_max)`` per segment
-(:func:`~apcc_graph.factors.projection.calibration_key`) and a ``Pose3`` per camera
-(:func:`~apcc_graph.factors.projection.mount_key`), each with a prior around the robot file's
+(:func:`~apcc_graph.factors.keys.calibration_key`) and a ``Pose3`` per camera
+(:func:`~apcc_graph.factors.keys.mount_key`), each with a prior around the robot file's
 value. A mount's tangent is gtsam's, ``tip_T_cam . Exp(xi)`` with ``xi = (omega, v)`` in the
 camera frame, so its standard deviations are three rotations (radians) then three translations
 (metres) about and along the camera's axes.
@@ -19,7 +19,8 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 
-from apcc_graph.factors.projection import calibrated, calibration_key, mount_key
+from apcc_graph.factors.keys import calibration_key, mount_key
+from apcc_graph.factors.projection import calibrated
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment

@@ -6,8 +6,8 @@ and degrees. Projecting every observation through the exact model turns that mis
 contradictions between cameras and frames. Here the graph says the model is approximate:
 
 - variables: each frame's vector ``x_f`` (the robot's parameterisation), each segment tip's pose
-  ``world_T_tip`` per frame (key :func:`tip_key`), and each track's 3-D point
-  (:func:`point_key`);
+  ``world_T_tip`` per frame and each track's 3-D point (keys:
+  :mod:`apcc_graph.factors.keys`);
 - each segment's tip is tied to its base (the previous tip, or the robot's base) through the
   segment's APCC transform at ``x_f`` by :func:`~apcc_graph.factors.kinematic.segment_tie_factor`
   with the model noise ``GraphOptions.model_sigma`` (position and rotation of the tip, in the
@@ -31,8 +31,9 @@ import gtsam
 import numpy as np
 
 from apcc_graph.estimation.batch_solve import BatchReport, ProjectionSolution
-from apcc_graph.estimation.graph import frame_key, observed_cameras, prior_factors
+from apcc_graph.estimation.graph import observed_cameras, prior_factors
 from apcc_graph.estimation.options import GraphOptions, Robustness
+from apcc_graph.factors.keys import frame_key, point_key, tip_key
 from apcc_graph.factors.kinematic import segment_tie_factor
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.factors.triangulation import robust_triangulate
@@ -41,25 +42,11 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
 
-__all__ = ["POINT_PRIOR_SIGMA", "forward_tips", "point_key", "pose_solve",
-           "square_root_information", "tip_key"]
-
-MAX_SEGMENTS = 64
-"""Tip keys leave room for this many segments per frame."""
+__all__ = ["POINT_PRIOR_SIGMA", "forward_tips", "pose_solve", "square_root_information"]
 
 POINT_PRIOR_SIGMA = 10.0
 """Standard deviation (metres) of the weak prior on each track's point around its first
 triangulation: it only holds a point whose rays are nearly parallel."""
-
-
-def tip_key(frame: int, segment: int) -> int:
-    """Key of segment ``segment``'s ``world_T_tip`` (a ``Pose3``) at frame ``frame``."""
-    return int(gtsam.symbol("t", frame * MAX_SEGMENTS + segment))
-
-
-def point_key(camera: int, track: int) -> int:
-    """Key of camera ``camera``'s track ``track``'s point (a ``Point3``, world frame)."""
-    return int(gtsam.symbol("l", camera * 2**32 + track))
 
 
 def forward_tips(bending: Bending, x: FloatArray, bases: FloatArray) -> FloatArray:

@@ -25,8 +25,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.estimation.pose_batch import POINT_PRIOR_SIGMA, point_key, tip_key
+from apcc_graph.estimation.pose_batch import POINT_PRIOR_SIGMA
 from apcc_graph.estimation.pose_batch import square_root_information as root_information
+from apcc_graph.factors.keys import point_key, tip_key
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.factors.triangulation import robust_triangulate
 from apcc_graph.model.arrays import FloatArray, IntArray

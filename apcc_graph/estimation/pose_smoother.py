@@ -36,10 +36,9 @@ from numpy.typing import ArrayLike
 from apcc_graph.estimation.bends import parameterisation, start_vector
 from apcc_graph.estimation.frame_priors import frame_priors
 from apcc_graph.estimation.front_end import front_end_guess
-from apcc_graph.estimation.graph import frame_key
 from apcc_graph.estimation.initial_guess import predict
 from apcc_graph.estimation.options import GraphOptions, Robustness
-from apcc_graph.estimation.pose_batch import forward_tips, tip_key
+from apcc_graph.estimation.pose_batch import forward_tips
 from apcc_graph.estimation.pose_points import PosePoints
 from apcc_graph.estimation.projection_tracks import Rows, frame_rows
 from apcc_graph.estimation.rotation_gate import judge_frame
@@ -52,6 +51,7 @@ from apcc_graph.estimation.window import (
     start_angles,
     warn_restart,
 )
+from apcc_graph.factors.keys import elimination_group, frame_key, tip_key
 from apcc_graph.factors.kinematic import segment_tie_factor
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
@@ -64,14 +64,6 @@ one; the frames still inside have not converged as far as those that left)."""
 GATE = 0.02
 """The model-free outlier gate's threshold (radians of bearing) when the settings name none:
 the batch with model noise decides its first outliers with the same."""
-
-
-def elimination_group(key: int) -> int:
-    """The window's elimination order: points first (each point's own block is positive
-    definite thanks to its prior, so Cholesky never meets a cancelled pivot), then the tips,
-    then the frame vectors at the root of the Bayes tree (so their marginals cost little)."""
-    kind = key >> 56
-    return 0 if kind == ord("l") else 2 if kind == ord("x") else 1
 
 
 class PoseSmoother:

@@ -42,7 +42,6 @@ from apcc_graph.estimation.fit_monitor import BlockFit, FitMonitor
 from apcc_graph.estimation.fixed_lag import WindowSolver
 from apcc_graph.estimation.frame_priors import frame_priors
 from apcc_graph.estimation.front_end import front_end_guess
-from apcc_graph.estimation.graph import frame_key
 from apcc_graph.estimation.initial_guess import predict, refine, row_inliers
 from apcc_graph.estimation.landmarks import Additions, Landmarks
 from apcc_graph.estimation.options import GraphOptions, Robustness
@@ -62,6 +61,7 @@ from apcc_graph.estimation.window import (
     start_angles,
     warn_restart,
 )
+from apcc_graph.factors.keys import frame_key
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations

@@ -51,13 +51,14 @@ from apcc_graph.estimation.blackout import (
     warn_segment_lost,
 )
 from apcc_graph.estimation.fixed_lag import WindowSolver
-from apcc_graph.estimation.graph import frame_key, prior_factors
+from apcc_graph.estimation.graph import prior_factors
 from apcc_graph.estimation.landmarks import Landmarks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_tracks import ProjectionTracks, Rows, frame_rows
 from apcc_graph.estimation.rotation_gate import judge_frame
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.window import Window, component_sigmas, key_stamps
+from apcc_graph.factors.keys import frame_key
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
