@@ -37,7 +37,6 @@ _EXPORTS = {
     "ModelFitWarning": "apcc_graph.estimation.model_fit",
     "UnknownStartError": "apcc_graph.estimation.start_search",
     "FixedLagSmoother": "apcc_graph.estimation.smoother",
-    "PoseSmoother": "apcc_graph.estimation.pose_smoother",
     "GraphOptions": "apcc_graph.estimation.options",
     "Robustness": "apcc_graph.estimation.options",
     "ChainOptions": "apcc_graph.estimation.options",

@@ -24,7 +24,7 @@ from apcc_graph.bench.reliability import (
 from apcc_graph.bench.smoother import NOISE_PX, THETA0_SIGMA
 from apcc_graph.estimation.blackout import BlackoutWarning, Reacquired, Reacquisition
 from apcc_graph.estimation.methods import ObservationWarning, estimate
-from apcc_graph.estimation.smoother_restarts import Restarts
+from apcc_graph.estimation.smoother.restarts import Recovery
 from apcc_graph.estimation.start_check import StartWarning, start_chi2
 from apcc_graph.evaluation.recovery import sigma_honesty
 from apcc_graph.evaluation.sequence_bound import sequence_bound
@@ -86,20 +86,22 @@ HELD: list[dict[str, object]] = []
 def blind(cases: dict[str, FaultCase], undisturbed: tuple[FaultRun, np.ndarray]
           ) -> tuple[FaultCase, FaultRun, np.ndarray]:
     case = cases["all cameras blind for 1 s"]
-    holding = Restarts._restart_holding
+    holding = Recovery._restart_holding
 
-    def recorded(self: Restarts, kept: Reacquisition, found: Reacquired) -> None:
-        holding(self, kept, found)
-        window = self._window
+    def recorded(self: Recovery, kept: Reacquisition, found: Reacquired) -> object:
+        out = holding(self, kept, found)
+        window = self.window
         HELD.append({
             "slots": list(kept.slots), "window": sorted(window.stamps),
             "moved": max(float(np.max(np.abs(window.thetas[h] - found.x[k])))
                          for k, h in enumerate(kept.slots) if window.inside(h)),
-            "cameras": [len(self._tracks.live.frame_rows(h)) for h in kept.slots]})
+            "cameras": [len(self.model.tracks.live.frame_rows(h))  # type: ignore[attr-defined]
+                        for h in kept.slots]})
+        return out
 
     HELD.clear()
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(Restarts, "_restart_holding", recorded)
+        patch.setattr(Recovery, "_restart_holding", recorded)
         return (case, *run_case(case, undisturbed[1], cases["none"].simulation))
 
 

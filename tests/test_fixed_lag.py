@@ -1,4 +1,5 @@
-"""The fixed-lag smoother over iSAM2 (:class:`~apcc_graph.estimation.fixed_lag.FixedLagISAM2`)
+"""The fixed-lag smoother over iSAM2 (:class:`~apcc_graph.estimation.smoother.fixed_lag.
+FixedLagISAM2`)
 against gtsam's own ``IncrementalFixedLagSmoother``, and its marginalisation's pitfalls."""
 
 from __future__ import annotations
@@ -7,7 +8,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from apcc_graph.estimation.fixed_lag import FixedLagISAM2
+from apcc_graph.estimation.smoother.fixed_lag import FixedLagISAM2
 
 LAG, DT = 0.5, 0.1
 
@@ -142,8 +143,8 @@ def test_the_bench_times_both_windows_on_one_recording() -> None:
 
 def test_the_smoother_chooses_its_window_by_its_options() -> None:
     from apcc_graph.bench.smoother import ROBOT_FILE
-    from apcc_graph.estimation.fixed_lag import GtsamFixedLag
     from apcc_graph.estimation.smoother import FixedLagSmoother
+    from apcc_graph.estimation.smoother.fixed_lag import GtsamFixedLag
     from apcc_graph.estimation.smoother_options import SmootherOptions
     from apcc_graph.io.robot_file import load_robot
 

@@ -129,16 +129,16 @@ def test_a_pause_while_the_robot_moves_is_said_and_reacquired(
     the first ran."""
     from apcc_graph.bench.reliability import fault_cases
     from apcc_graph.estimation.blackout import BlackoutWarning
-    from apcc_graph.estimation.smoother_restarts import Restarts
+    from apcc_graph.estimation.smoother.restarts import Recovery
 
     rounds: list[list[int]] = []
-    first_round = Restarts._reacquire
+    first_round = Recovery.reacquire
 
-    def recorded(self: Restarts, kept: object) -> None:
+    def recorded(self: Recovery, kept: object) -> object:
         rounds.append(list(kept.slots))  # type: ignore[attr-defined]
-        first_round(self, kept)  # type: ignore[arg-type]
+        return first_round(self, kept)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(Restarts, "_reacquire", recorded)
+    monkeypatch.setattr(Recovery, "reacquire", recorded)
 
     clean = {c.name: c for c in fault_cases(300, 1)}["none"].simulation.sequence
     paused = dropped(clean, 100, 45)

@@ -4,7 +4,7 @@ The smoother's landmarks used to make two runs in one process differ by about 1e
 some frame on (frame 119 or 171 of the shipped sample, varying from run to run): gtsam 4.3's
 fixed-lag smoother chose what to re-eliminate before each marginalisation by walking a hash set
 of clique pointers. The window is now held by
-:class:`~apcc_graph.estimation.fixed_lag.FixedLagISAM2`, which does not.
+:class:`~apcc_graph.estimation.smoother.fixed_lag.FixedLagISAM2`, which does not.
 """
 
 from __future__ import annotations

@@ -144,7 +144,7 @@ def test_a_live_piece_is_decided_only_once_the_gate_leaves_it_three_rows() -> No
     smoother = FixedLagSmoother(robot, theta0=seq.thetas[0])
     for f in range(6):
         smoother.update(seq.frame(f))
-    tracks = smoother._tracks
+    tracks = smoother._model.tracks  # type: ignore[attr-defined]
     cam = robot.camera_segments[0]
     # A new track (id 10**6) copying an existing track's rows in frames 1..4.
     t = seq.tracks[cam]
@@ -192,7 +192,7 @@ def test_the_smoothers_gate_does_not_depend_on_its_estimate() -> None:
         for f in range(seq.n_frames):
             smoother.update(seq.frame(f))
         verdicts.append({(cam, r.frame, int(i)): int(v)
-                         for cam, state in smoother._tracks.live._cams.items()
+                         for cam, state in smoother._model.tracks.live._cams.items()  # type: ignore[attr-defined]
                          for r in state.rows for i, v in zip(r.ids, r.verdicts, strict=True)})
     assert verdicts[0] == verdicts[1]
     last = seq.n_frames - 1  # its verdicts wait for the frame after

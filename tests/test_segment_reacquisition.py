@@ -68,7 +68,7 @@ def test_the_window_takes_the_reacquired_segment_and_keeps_the_others() -> None:
     """Frames inside the window and frames that left (not taken yet) get segment 2's angle,
     covariance cell and status; segments 0 and 1 keep theirs; a frame already taken is not
     touched."""
-    window = Window(1.0, 3, lambda: None)  # type: ignore[arg-type, return-value]
+    window = Window(1.0, 3)
     ok = np.array(["ok", "ok", "ok"], dtype="<U24")
     window.enter(5, 0.5, 0.5, ok.copy())
     window.thetas[5] = np.array([1.0, 2.0, 3.0])
@@ -89,7 +89,7 @@ def test_the_window_takes_the_reacquired_segment_and_keeps_the_others() -> None:
 def test_a_frame_that_left_and_was_not_taken_reenters_the_window_in_order() -> None:
     """A restart that holds the frames a batch re-acquired takes back those a gtsam failure
     pushed out, in frame order, with their status; a frame already taken stays out."""
-    window = Window(1.0, 3, lambda: None)  # type: ignore[arg-type, return-value]
+    window = Window(1.0, 3)
     done = np.array(["reacquired"] * 3, dtype="<U24")
     window.enter(7, 0.7, 0.7, done.copy())
     window.thetas[7] = np.zeros(3)

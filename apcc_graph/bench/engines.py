@@ -10,7 +10,7 @@ rounding tips some of iSAM2's re-linearisation decisions. The largest difference
 
 The window's peer: the same smoother with gtsam's ``IncrementalFixedLagSmoother`` holding its
 window (``SmootherOptions(reproducible=False)``), which marginalises at every update and is
-not reproducible (:mod:`apcc_graph.estimation.fixed_lag`).
+not reproducible (:mod:`apcc_graph.estimation.smoother.fixed_lag`).
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ from apcc_graph.cli.common import (
     check_output_folder,
     force_option,
     int_list,
+    model_sigma,
     non_negative,
 )
 
@@ -64,6 +65,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                       help="starting configuration, degrees, one per segment (default: searched in "
                       "the first second of frames)")
     live.add_argument("--lag", type=float, default=1.0, help="smoother lag, seconds (default 1)")
+    live.add_argument("--model-sigma", type=model_sigma, default=None, metavar="MM,DEG",
+                      help="model error as noise: how far a segment's tip may depart from the "
+                           "model (millimetres, degrees); default the exact model")
     live.add_argument("--sync-tolerance", type=non_negative, default=None,
                       help="seconds between the cameras' images of one frame (bag, videos)")
     live.add_argument("--no-realtime", action="store_true",
@@ -78,6 +82,7 @@ def run(args: argparse.Namespace) -> str:
     from apcc_graph.cli.estimate import _theta0
     from apcc_graph.estimation.live import LiveEstimator
     from apcc_graph.estimation.live_guards import deferred_interrupts
+    from apcc_graph.estimation.options import GraphOptions
     from apcc_graph.estimation.smoother_options import SmootherOptions
     from apcc_graph.io.console import StatusLine
     from apcc_graph.io.estimates import AppendedEstimate
@@ -94,7 +99,8 @@ def run(args: argparse.Namespace) -> str:
     if args.force and out.is_dir():
         _empty(out)  # rows are appended as they come: the old run's files must not stay
     estimator = LiveEstimator(robot, theta0, SmootherOptions(lag=args.lag),
-                              realtime=not args.no_realtime)
+                              realtime=not args.no_realtime,
+                              graph=GraphOptions(model_sigma=args.model_sigma))
     files = AppendedEstimate(out, robot.n_segments, lambda th: robot.forward(th))
     status = StatusLine()
     latencies, processed, began = [], 0, time.monotonic()

@@ -55,7 +55,7 @@ import warnings
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -205,6 +205,8 @@ class LiveEstimator:
         theta0: the starting configuration (radians), or ``None``: searched in the first
             frames (module docstring).
         settings: the smoother's settings.
+        graph: the measurement model (with ``model_sigma``, model error as noise); its
+            ``theta0_sigma`` is replaced by the start search's when it runs.
         realtime: play the source at its own pace, dropping frames under overload; ``False``
             processes every frame as fast as it can (nothing dropped).
         clock, sleep: wall time (seconds) and waiting, replaceable in tests.
@@ -213,10 +215,13 @@ class LiveEstimator:
     def __init__(self, robot: Robot, theta0: ArrayLike | None = None,
                  settings: SmootherOptions | None = None, realtime: bool = True,
                  clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+                 sleep: Callable[[float], None] = time.sleep,
+                 graph: GraphOptions | None = None) -> None:
         self.robot, self.settings = robot, settings
+        self.graph = GraphOptions() if graph is None else graph
         self.smoother: FixedLagSmoother | None = (
-            None if theta0 is None else FixedLagSmoother(robot, theta0=theta0, settings=settings))
+            None if theta0 is None else FixedLagSmoother(robot, theta0=theta0, settings=settings,
+                                                         options=self.graph))
         self.start_search: str | None = None  # what the start search found, when it ran
         self.trackers = {cam: KLTTracker((c.width, c.height))
                          for cam, c in enumerate(robot.cameras) if c is not None}
@@ -322,7 +327,7 @@ class LiveEstimator:
                              f"{', '.join(f'{math.degrees(v):.2f}' for v in theta0)} deg "
                              f"(sigma {math.degrees(sigma):.2f} deg)")
         self.smoother = FixedLagSmoother(self.robot, theta0=theta0, settings=self.settings,
-                                         options=GraphOptions(theta0_sigma=sigma))
+                                         options=replace(self.graph, theta0_sigma=sigma))
         return True
 
     def _recording(self) -> Recording:
@@ -391,8 +396,9 @@ class LiveEstimator:
 
 def live_estimates(frames: Iterator[Frame], robot: Robot, theta0: ArrayLike | None = None,
                    settings: SmootherOptions | None = None, realtime: bool = True,
-                   stop: threading.Event | None = None) -> Iterator[LiveEstimate]:
+                   stop: threading.Event | None = None, graph: GraphOptions | None = None
+                   ) -> Iterator[LiveEstimate]:
     """:meth:`LiveEstimator.run` of a new :class:`LiveEstimator` (without its
     :meth:`~LiveEstimator.finish`: the last lag's frames then have only their filtered
     estimates)."""
-    return LiveEstimator(robot, theta0, settings, realtime).run(frames, stop)
+    return LiveEstimator(robot, theta0, settings, realtime, graph=graph).run(frames, stop)

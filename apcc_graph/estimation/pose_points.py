@@ -1,5 +1,5 @@
 """The tracks and points of the fixed-lag smoother with model noise
-(:mod:`~apcc_graph.estimation.pose_smoother`; ``docs/estimation.md``, "Model error as noise").
+(:mod:`~apcc_graph.estimation.smoother.noisy`; ``docs/estimation.md``, "Model error as noise").
 
 Each camera's track is held back, row by row, until its rays have parallax or its first row's
 frame is about to leave the window. Then its point is triangulated at the current camera poses
@@ -25,8 +25,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from apcc_graph.estimation.pose_batch import POINT_PRIOR_SIGMA
-from apcc_graph.estimation.pose_batch import square_root_information as root_information
+from apcc_graph.estimation.terms.noisy import POINT_PRIOR_SIGMA
+from apcc_graph.estimation.terms.noisy import square_root_information as root_information
 from apcc_graph.factors.keys import point_key, tip_key
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.factors.triangulation import robust_triangulate
@@ -42,7 +42,7 @@ leave the window needs two."""
 
 PRIOR_DEPTHS = 10.0
 """A new point's prior: isotropic, with a standard deviation of this many times its distance
-from the first camera that kept it (at most :data:`~apcc_graph.estimation.pose_batch.
+from the first camera that kept it (at most :data:`~apcc_graph.estimation.terms.noisy.
 POINT_PRIOR_SIGMA`). Weak beside any parallax; without parallax it is the point's only depth
 information, and a prior much weaker than this leaves the window's system so poorly conditioned
 that gtsam's Cholesky reports it indeterminate (measured on the real robot's replay: a restart
@@ -51,7 +51,7 @@ biases the tips, 22 / 54 mm against 5.5 / 19 mm)."""
 
 BASELINE = math.radians(2.0)
 """A point whose first and last kept cameras are this far apart as seen from it (radians) has
-the batch's weak prior (:data:`~apcc_graph.estimation.pose_batch.POINT_PRIOR_SIGMA`)."""
+the batch's weak prior (:data:`~apcc_graph.estimation.terms.noisy.POINT_PRIOR_SIGMA`)."""
 
 CAUCHY = 3.0
 """Scale of every projection factor's Cauchy loss (pixel-noise units)."""

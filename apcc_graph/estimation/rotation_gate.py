@@ -94,23 +94,27 @@ def gate_weights(verdicts: NDArray[np.int8]) -> FloatArray:
 
 def judge_frame(f: int, rows: Mapping[int, tuple[IntArray, FloatArray, FloatArray]],
                 before: Mapping[int, tuple[IntArray, FloatArray, FloatArray]],
-                live: Judged, threshold: float | None) -> dict[int, NDArray[np.int8]]:
+                threshold: float | None
+                ) -> tuple[dict[int, NDArray[np.int8]], dict[int, tuple[IntArray,
+                                                                       NDArray[np.bool_]]]]:
     """The gate between frames ``f - 1`` and ``f`` of a streaming estimator.
 
     Args:
         f: the new frame.
         rows, before: camera -> (track ids, normalised points, whitening) of frame ``f`` and
             of frame ``f - 1`` (empty when there is none).
-        live: the live tracks; frame ``f - 1``'s rows they hold get the judgement too.
         threshold: the gate's threshold (radians of bearing); ``None``: the gate is off.
 
     Returns:
         camera -> the verdicts of frame ``f``'s rows (:data:`NOT_JUDGED` where no pair could
-        judge them, or everywhere when the gate is off).
+        judge them, or everywhere when the gate is off); and camera -> (track ids of frame
+        ``f - 1``, whether frame ``f`` agrees with each), the judgement of the earlier frame's
+        rows, for whoever holds them (:class:`Judged`).
     """
     out = {cam: np.full(len(ids), NOT_JUDGED, dtype=np.int8) for cam, (ids, _, _) in rows.items()}
+    agreed: dict[int, tuple[IntArray, NDArray[np.bool_]]] = {}
     if threshold is None:
-        return out
+        return out, agreed
     for cam, (ids, xy, _) in rows.items():
         earlier = before.get(cam)
         found = (None if earlier is None
@@ -118,5 +122,5 @@ def judge_frame(f: int, rows: Mapping[int, tuple[IntArray, FloatArray, FloatArra
         if found is not None:
             i_before, i_now, agree = found
             out[cam][i_now] = agree
-            live.judge(f - 1, cam, earlier[0][i_before], agree)
-    return out
+            agreed[cam] = (earlier[0][i_before], agree)
+    return out, agreed

@@ -10,7 +10,6 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from apcc_graph.estimation.options import GraphOptions, Robustness
-from apcc_graph.estimation.pose_smoother import PoseSmoother
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
@@ -18,7 +17,7 @@ from apcc_graph.io.console import progress_bar
 from apcc_graph.model.sequence import Sequence
 
 
-def stream_estimate(smoother: FixedLagSmoother | PoseSmoother, sequence: Sequence,
+def stream_estimate(smoother: FixedLagSmoother, sequence: Sequence,
                     progress: bool = False) -> Estimate:
     """Feed a recorded sequence to ``smoother`` frame by frame; each frame's final estimate.
 
@@ -52,8 +51,7 @@ def smoother_estimate(
     spatial: bool = False,
 ) -> Estimate:
     """Run :class:`~apcc_graph.estimation.smoother.FixedLagSmoother` over a recorded sequence,
-    frame by frame (with ``options.model_sigma``, the smoother with model error as noise:
-    :class:`~apcc_graph.estimation.pose_smoother.PoseSmoother`).
+    frame by frame (with ``options.model_sigma``, with model error as noise).
 
     Args:
         sequence: the sequence.
@@ -69,8 +67,7 @@ def smoother_estimate(
     Returns:
         The estimate, ``method = "smoother"``.
     """
-    kind = (FixedLagSmoother if options is None or options.model_sigma is None
-            else PoseSmoother)
-    smoother = kind(sequence.robot, options=options, theta0=theta0, settings=settings,
-                    spatial=spatial, psi0=psi0, robustness=robustness)
+    smoother = FixedLagSmoother(sequence.robot, options=options, theta0=theta0,
+                                settings=settings, spatial=spatial, psi0=psi0,
+                                robustness=robustness)
     return stream_estimate(smoother, sequence, progress)

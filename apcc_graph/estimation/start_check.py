@@ -111,12 +111,15 @@ class FirstFrames:
         return self
 
     def check(self, theta0: FloatArray, sigma0: float, estimate: FloatArray,
-              covariance: Callable[[], FloatArray], frame_time: float) -> bool:
-        """:func:`check_start`; when the start is contradicted, search the kept frames and,
-        if they determine the start, set :attr:`replacement` (the frames to re-acquire from
-        the search's answer). Whether the start was contradicted."""
-        return check_start(theta0, sigma0, estimate, covariance, frame_time,
-                           lambda: self._search(np.asarray(theta0, dtype=float), sigma0))
+              covariance: Callable[[], FloatArray], frame_time: float
+              ) -> tuple[bool, Reacquisition | None]:
+        """:func:`check_start`; when the start is contradicted, search the kept frames.
+        Returns whether the start was contradicted and, if the search determines the start,
+        the plan: the frames to re-acquire from the search's answer."""
+        contradicted = check_start(theta0, sigma0, estimate, covariance, frame_time,
+                                   lambda: self._search(np.asarray(theta0, dtype=float),
+                                                        sigma0))
+        return contradicted, self.replacement
 
     def _search(self, theta0: FloatArray, sigma0: float) -> str:
         sequence = self.kept.sequence()

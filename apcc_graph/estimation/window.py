@@ -3,10 +3,9 @@
 - :class:`SmootherFrame`: one frame's estimate as a smoother returns it;
 - :class:`Window`: which frames are inside the window (each with the gtsam timestamp of its
   variables), their latest estimates and statuses, which of them the next update marginalises,
-  the final estimates of the frames that left, and gtsam's smoother holding the window (replaced
-  when a smoother restarts);
-- :func:`new_gtsam_smoother` and :func:`key_stamps`: the fixed-lag smoother over gtsam's iSAM2
-  (:class:`~apcc_graph.estimation.fixed_lag.FixedLagISAM2`) and its timestamps per key;
+  the final estimates of the frames that left (the variables themselves are in gtsam's iSAM2,
+  which :mod:`apcc_graph.estimation.smoother.solver` owns);
+- :func:`key_stamps`: the timestamps of new variables per key;
 - :func:`start_angles` and :func:`observed_camera`: the checks of a stream's robot, start and
   observations.
 
@@ -21,11 +20,9 @@ import warnings
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 
-import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.estimation.fixed_lag import FixedLagISAM2, GtsamFixedLag, WindowSolver
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.camera import TipCamera
 from apcc_graph.model.parameterisation import Bending
@@ -103,25 +100,6 @@ def component_sigmas(bending: Bending, blocks: FloatArray) -> FloatArray:
     return np.sqrt(np.maximum(np.diagonal(C, axis1=-2, axis2=-1), 0.0)).ravel()
 
 
-def new_gtsam_smoother(lag: float, relinearize_threshold: float,
-                       factorization: str = "CHOLESKY", reproducible: bool = True,
-                       groups: Callable[[int], int] | None = None) -> WindowSolver:
-    """iSAM2 over the last ``lag`` seconds, factoring the window's linear system by
-    ``factorization`` (``"CHOLESKY"`` or ``"QR"``): marginalising the same way on every run
-    (:mod:`~apcc_graph.estimation.fixed_lag`), or gtsam's fixed-lag smoother; ``groups``
-    orders the elimination (key -> group, lower first; the reproducible one only)."""
-    params = gtsam.ISAM2Params()
-    params.setRelinearizeThreshold(relinearize_threshold)
-    params.relinearizeSkip = 1
-    params.findUnusedFactorSlots = True
-    params.setFactorization(factorization)
-    if groups is not None and not reproducible:
-        raise ValueError("new_gtsam_smoother: an elimination order needs the reproducible "
-                         "smoother")
-    return (FixedLagISAM2(lag, params, groups=groups) if reproducible
-            else GtsamFixedLag(lag, params))
-
-
 def key_stamps(stamps: Iterable[tuple[int, float]] = ()) -> dict[int, float]:
     """The timestamp of each new variable (seconds, by key), from ``(key, seconds)``."""
     return {int(key): float(stamp) for key, stamp in stamps}
@@ -146,12 +124,10 @@ class Window:
         lag: window length (seconds).
         n_segments: the length of a frame's recorded sigmas (the ``S w^2`` entries of its
             covariance blocks, :func:`present_frame`).
-        new_smoother: makes gtsam's smoother for the window (again after a restart).
         present: turns a frame's record into what the smoother returns
             (:func:`present_frame`); default as recorded.
 
     Attributes:
-        smoother: gtsam's smoother holding the window's variables.
         stamps: frame -> gtsam timestamp of its variables (seconds), for frames inside.
         times: frame -> its timestamp (seconds), for frames inside.
         thetas: frame -> its latest estimate (its frame vector), for frames inside (and the
@@ -163,17 +139,13 @@ class Window:
             marginalisation block, the previous frame has left when the next one arrives).
         count: frames received so far.
         last_time: the timestamp of the last frame received (``None`` before the first).
-        recoveries: gtsam failures caught and recovered from.
     """
 
     def __init__(self, lag: float, n_segments: int,
-                 new_smoother: Callable[[], WindowSolver],
                  present: Callable[[SmootherFrame], SmootherFrame] | None = None) -> None:
         self.lag = lag
         self.n_segments = n_segments
         self.present = present or (lambda frame: frame)
-        self._new_smoother = new_smoother
-        self.smoother = new_smoother()
         self.stamps: dict[int, float] = {}
         self.times: dict[int, float] = {}
         self.thetas: dict[int, FloatArray] = {}
@@ -182,11 +154,6 @@ class Window:
         self.recent: dict[int, FloatArray] = {}
         self.count = 0
         self.last_time: float | None = None
-        self.recoveries = 0
-
-    def renew(self) -> None:
-        """A fresh gtsam smoother (after a failure); the frames' records stay."""
-        self.smoother = self._new_smoother()
 
     def check_time(self, frame: int, timestamp: float) -> float:
         """The new frame's timestamp (seconds), which must come after the previous frame's."""
