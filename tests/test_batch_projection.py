@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apcc_graph.estimation import batch_solve as batch_module
 from apcc_graph.estimation.batch import GraphOptions, batch_estimate, projection_solve
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.graph import CameraTerms
@@ -23,6 +22,7 @@ from apcc_graph.estimation.image_motion import motion_clock
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 from apcc_graph.estimation.options import BatchOptions, Robustness
 from apcc_graph.estimation.robust import gnc_schedule
+from apcc_graph.estimation.terms import exact as exact_terms
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.factors.track_points import cut_tracks
 from apcc_graph.io.robot_file import load_robot
@@ -182,8 +182,8 @@ def test_outlier_decisions_match_the_simulated_outliers(
         built.append(terms)
         return terms
 
-    original = batch_module.build_terms
-    monkeypatch.setattr(batch_module, "build_terms", build_terms)
+    original = exact_terms.build_terms
+    monkeypatch.setattr(exact_terms, "build_terms", build_terms)
     found = projection_solve(seq, seq.thetas, seq.thetas[0], options, marginals=False)
     inliers, report = found.inliers, found.report
     assert len(built) == 1

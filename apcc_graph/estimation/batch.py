@@ -3,17 +3,17 @@
 The graph (:mod:`apcc_graph.estimation.graph`): one vector per frame in the robot's
 parameterisation (:mod:`apcc_graph.estimation.bends`: the angles of a planar robot, the bending
 vectors of one that bends in 3-D), the start prior, a weak motion prior, soft joint limits, and
-per camera the projection factors of its tracks: every observation once, each track's 3-D
-point triangulated and eliminated (``docs/estimation.md``).
+the measurement model's terms (:mod:`apcc_graph.estimation.terms`; ``docs/estimation.md``): by
+default the exact model, every observation once, each track's 3-D point triangulated and
+eliminated; with ``GraphOptions.model_sigma``, model error as noise.
 
 Outliers are decided per observation against its own track's point, by graduated
 non-convexity of a truncated quadratic (:mod:`apcc_graph.estimation.robust`): the first
-decisions come from a robust triangulation of every track at the initial angles; then, for
-each ``mu`` of the continuation, gtsam's Levenberg-Marquardt solves the weighted problem and the
-weights are recomputed from the residuals at the new solution. The last stage (the truncated
-quadratic itself) repeats until no observation changes side. Marginal standard deviations come
-from ``gtsam.Marginals`` at the solution. The solver is
-:mod:`apcc_graph.estimation.batch_solve`; this module finds its starting values.
+decisions come from a robust triangulation of every track at the initial angles (with model
+noise, from the images alone); then, for each ``mu`` of the continuation, Levenberg-Marquardt
+solves the weighted problem and the weights are recomputed from the residuals at the new
+solution. The last stage (the truncated quadratic itself) repeats until no observation changes
+side. The solver is :mod:`apcc_graph.estimation.batch_solve`; this module finds its start.
 """
 
 from __future__ import annotations
@@ -24,19 +24,11 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from apcc_graph.estimation.batch_solve import (
-    BatchReport,
-    ProjectionSolution,
-    build_terms,
-    marginal_blocks,
-    optimise,
-    projection_solve,
-)
+from apcc_graph.estimation.batch_solve import BatchReport, ProjectionSolution, projection_solve
 from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
 from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 from apcc_graph.estimation.options import INITS, GraphOptions, Robustness
-from apcc_graph.estimation.pose_batch import pose_solve
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
@@ -99,7 +91,7 @@ def batch_estimate(
             ``spatial``); default from ``init``.
         options: how the graph is built (:class:`GraphOptions`); with its ``model_sigma`` the
             model's error is noise: tip poses are variables tied to the kinematics
-            (:mod:`~apcc_graph.estimation.pose_batch`).
+            (:mod:`~apcc_graph.estimation.terms.noisy`).
         max_iterations: Levenberg-Marquardt iterations per stage.
         marginals: compute marginal standard deviations (otherwise NaN).
         progress: show progress bars.
@@ -144,15 +136,10 @@ def batch_estimate(
     x0 = start_vector(robot, bending, theta0, psi0)
     initial, status = _initial_vectors(sequence, bending, x0, (theta0, psi0), initial, init,
                                        options, robustness, progress)
-    if options.model_sigma is None:
-        found = projection_solve(sequence, initial, x0, options, robustness, max_iterations,
-                                 marginals=marginals, progress=progress,
-                                 calibration_sigmas=calibration_sigmas if calibrate else None,
-                                 bending=bending,
-                                 mount_sigmas=mount_sigmas if calibrate else None)
-    else:
-        found = pose_solve(sequence, initial, x0, options, robustness, max_iterations,
-                           marginals=marginals, bending=bending)
+    found = projection_solve(sequence, initial, x0, options, robustness, max_iterations,
+                             marginals=marginals, progress=progress,
+                             calibration_sigmas=calibration_sigmas if calibrate else None,
+                             bending=bending, mount_sigmas=mount_sigmas if calibrate else None)
     cal, std = found.calibration, found.calibration_std
     status = np.where(np.char.startswith(status, "initial"), "initial", "ok").astype("<U24")
     return bending_estimate(
@@ -163,4 +150,4 @@ def batch_estimate(
 
 
 __all__ = ["BatchReport", "GraphOptions", "ProjectionSolution", "Robustness", "batch_estimate",
-           "build_terms", "marginal_blocks", "optimise", "projection_solve"]
+           "projection_solve"]

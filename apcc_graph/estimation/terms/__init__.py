@@ -1,0 +1,79 @@
+"""The batch's measurement models behind one interface (:class:`MeasurementModel`): the exact
+model (:mod:`~apcc_graph.estimation.terms.exact`) and model error as noise
+(:mod:`~apcc_graph.estimation.terms.noisy`); :func:`measurement_model` is the one place that
+chooses between them. The batch (:mod:`apcc_graph.estimation.batch_solve`) adds the priors on
+the frame vectors and runs the same robust Levenberg-Marquardt loop over either.
+
+May import: the layers below :mod:`apcc_graph.estimation`, and from it the graph building, the
+options, the outlier decisions and the model calibration; never the batch or the smoother.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.estimation.model_calibration import ModelCalibration
+from apcc_graph.estimation.options import GraphOptions, Robustness
+from apcc_graph.estimation.terms.exact import ExactTerms
+from apcc_graph.estimation.terms.noisy import NoisyTerms
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence
+
+__all__ = ["ExactTerms", "MeasurementModel", "NoisyTerms", "measurement_model"]
+
+
+class MeasurementModel(Protocol):
+    """What a batch's graph adds for the observations of one sequence, and how it decides
+    outliers: ``start`` binds the sequence and makes the first decisions; each stage solves
+    the priors on the frame vectors plus ``factors()`` from ``values(x)`` (eliminated in
+    ``ordering()``, or gtsam's when ``None``), then ``measure``s the residuals at the solution,
+    from which the next stage's ``set_weights`` decide. ``calibration``: the self-calibrated
+    parameters at the last solution, or ``None``."""
+
+    calibration: ModelCalibration | None
+
+    def start(self, sequence: Sequence, x: FloatArray, robustness: Robustness) -> list[float]:
+        """First decisions at ``x``; returns the stages (``mu``) before the residual rounds."""
+
+    def factors(self) -> list[gtsam.NonlinearFactor]:
+        """The factors of the observations and the model's own variables."""
+
+    def values(self, x: FloatArray) -> gtsam.Values:
+        """The frame vectors ``x`` and the model's own variables at their last values."""
+
+    def ordering(self) -> gtsam.Ordering | None:
+        """The elimination order of every variable, or ``None`` for gtsam's."""
+
+    def measure(self, values: gtsam.Values) -> None:
+        """Take the model's own variables from the solution ``values``; residuals there."""
+
+    def set_weights(self, threshold: float, mu: float) -> int:
+        """Decisions from the last residuals; returns how many changed side."""
+
+    def decisions(self) -> tuple[NDArray[np.int64], int, int]:
+        """``(F, S)`` inliers per frame and camera; outliers; all observations."""
+
+
+def measurement_model(robot: Robot, options: GraphOptions, bending: Bending,
+                      calibration_sigmas: tuple[float, float] | None = None,
+                      mount_sigmas: tuple[float, float] | None = None) -> MeasurementModel:
+    """The exact model when ``options.model_sigma`` is ``None``, else model error as noise.
+
+    ``calibration_sigmas`` and ``mount_sigmas`` (self-calibration,
+    :class:`~apcc_graph.estimation.terms.exact.ExactTerms`) need the exact model.
+
+    Raises:
+        ValueError: self-calibration with a ``model_sigma``.
+    """
+    if options.model_sigma is None:
+        return ExactTerms(robot, options, bending, calibration_sigmas, mount_sigmas)
+    if calibration_sigmas is not None or mount_sigmas is not None:
+        raise ValueError("self-calibration (calibrate) needs the exact model: "
+                         "GraphOptions.model_sigma = None")
+    return NoisyTerms(robot, options, bending)

@@ -1,0 +1,183 @@
+"""Model error as noise (``docs/estimation.md``, "Model error as noise"): a real segment is
+only approximately an APCC segment, so the graph has each segment tip's pose ``world_T_tip`` per
+frame as a variable, tied to its base (the previous tip, or the robot's base) through the
+segment's APCC transform at the frame vector by
+:func:`~apcc_graph.factors.kinematic.segment_tie_factor` with the noise
+``GraphOptions.model_sigma``. Each track's 3-D point is a variable too (weak prior), and each
+observation a gtsam C++ projection factor on its camera's tip (the mount as the sensor offset)
+and its point, whitened by its own pixel Jacobian. Outliers are decided without the model first
+(:func:`~apcc_graph.frontend.rotation_pairs.pair_inliers`), then by each observation's residual
+at the solution against its track's point (truncated quadratic).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from apcc_graph.estimation.graph import observed_cameras, values_from
+from apcc_graph.estimation.options import GraphOptions, Robustness
+from apcc_graph.estimation.robust import gnc_tls_weights
+from apcc_graph.factors.keys import frame_key, point_key, tip_key
+from apcc_graph.factors.kinematic import segment_tie_factor
+from apcc_graph.factors.track_points import TrackObservations
+from apcc_graph.factors.triangulation import robust_triangulate
+from apcc_graph.frontend.rotation_pairs import pair_inliers
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.parameterisation import Bending
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence
+
+__all__ = ["POINT_PRIOR_SIGMA", "NoisyTerms", "forward_tips", "square_root_information"]
+
+POINT_PRIOR_SIGMA = 10.0
+"""Standard deviation (metres) of the weak prior on each track's point around its first
+triangulation: it only holds a point whose rays are nearly parallel."""
+
+
+def forward_tips(bending: Bending, x: FloatArray, bases: FloatArray) -> FloatArray:
+    """``(F, S, 4, 4)`` every segment tip's ``world_T_tip`` at the frame vectors ``x``
+    ``(F, dim)``, from the base poses ``bases`` ``(F, 4, 4)``."""
+    out = np.empty((len(x), bending.n_segments, 4, 4))
+    for f, (vector, base) in enumerate(zip(x, bases, strict=True)):
+        T = base
+        for j in range(bending.n_segments):
+            T = T @ bending.transform(vector, j)
+            out[f, j] = T
+    return out
+
+
+def square_root_information(W: FloatArray) -> FloatArray:
+    """``(N, 2, 2)`` upper-triangular ``R`` with ``R^T R = W^T W`` (the same whitened norm as
+    ``W``, in the form gtsam's ``SqrtInformation`` expects)."""
+    return np.swapaxes(np.linalg.cholesky(np.swapaxes(W, -1, -2) @ W), -1, -2)
+
+
+@dataclass
+class _Camera:
+    """One camera's observations, mount, decisions, points and residual norms."""
+
+    obs: TrackObservations
+    mount: FloatArray
+    weights: FloatArray
+    points: FloatArray | None = None
+    norms: FloatArray | None = None
+
+    def kept(self) -> NDArray[np.bool_]:
+        """``(T,)`` the tracks with at least two inlier rows (in the graph)."""
+        return np.bincount(self.obs.tracks, self.weights > 0.0, self.obs.n_tracks) >= 2
+
+    def triangulate(self, tips: FloatArray) -> None:
+        """Every track's point at the tips, robustly (the first time from the model-free
+        decisions; then from every row, from the last points), and the residual norms."""
+        cams = tips[self.obs.frames, self.obs.camera] @ self.mount
+        weights = self.weights if self.points is None else np.ones(len(self.obs))
+        self.points, self.norms = robust_triangulate(self.obs, cams[:, :3, :3], cams[:, :3, 3],
+                                                     weights, self.points)
+
+
+class NoisyTerms:
+    """The batch's terms with model error as noise (module docstring); ``options.model_sigma``
+    (position m, rotation rad) must be set. Self-calibration is the exact model's only."""
+
+    calibration = None
+
+    def __init__(self, robot: Robot, options: GraphOptions, bending: Bending) -> None:
+        if options.model_sigma is None:
+            raise ValueError("model error as noise needs GraphOptions.model_sigma (position "
+                             "m, rotation rad); None is the exact model")
+        self.robot, self.options, self.bending = robot, options, bending
+        position, rotation = options.model_sigma
+        self.tie_sigmas = [rotation] * 3 + [position] * 3
+        self.cameras: list[_Camera] = []
+        self.bases = self.tips = np.empty((0, bending.n_segments, 4, 4))
+
+    def start(self, sequence: Sequence, x: FloatArray, robustness: Robustness) -> list[float]:
+        """The first decisions from the images alone, and the points triangulated with them at
+        the model's tips at ``x``; that first stage is a truncated one (``[inf]``;
+        ``robustness.schedule`` is not used)."""
+        base = np.eye(4) if sequence.world_T_base is None else sequence.world_T_base
+        self.bases = np.broadcast_to(base, (sequence.n_frames, 4, 4))
+        self.tips = forward_tips(self.bending, np.asarray(x, dtype=float), self.bases)
+        self.cameras = []
+        for obs in observed_cameras(sequence, self.options):
+            camera = self.robot.cameras[obs.camera]
+            assert camera is not None
+            bearings = np.column_stack([obs.xy, np.ones(len(obs))])
+            weights = pair_inliers(obs.frames, obs.tracks, bearings).astype(float)
+            self.cameras.append(_Camera(obs, camera.tip_T_cam, weights))
+            self.cameras[-1].triangulate(self.tips)
+        return [math.inf]
+
+    def factors(self) -> list[gtsam.NonlinearFactor]:
+        """Every frame's segment ties, then each camera's inlier observations (C++ projection
+        factors) and the weak priors of their points."""
+        out: list[gtsam.NonlinearFactor] = [
+            segment_tie_factor(frame_key(f), tip_key(f, j),
+                               self.bases[f] if j == 0 else tip_key(f, j - 1), self.bending, j,
+                               self.tie_sigmas)
+            for f in range(len(self.tips)) for j in range(self.bending.n_segments)]
+        K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
+        prior = gtsam.noiseModel.Isotropic.Sigma(3, POINT_PRIOR_SIGMA)
+        for c in self.cameras:
+            obs, body, kept = c.obs, gtsam.Pose3(c.mount), c.kept()
+            root = square_root_information(obs.whiten)
+            for k in np.flatnonzero((c.weights > 0.0) & kept[obs.tracks]).tolist():
+                noise = gtsam.noiseModel.Gaussian.SqrtInformation(
+                    root[k] * math.sqrt(c.weights[k]), False)
+                out.append(gtsam.GenericProjectionFactorCal3_S2(
+                    obs.xy[k], noise, tip_key(int(obs.frames[k]), obs.camera),
+                    point_key(obs.camera, int(obs.tracks[k])), K, body))
+            assert c.points is not None
+            out += [gtsam.PriorFactorPoint3(point_key(obs.camera, t), c.points[t], prior)
+                    for t in np.flatnonzero(kept).tolist()]
+        return out
+
+    def values(self, x: FloatArray) -> gtsam.Values:
+        """The frame vectors ``x``, the tips and the points of the tracks in the graph."""
+        values = values_from(x, range(len(x)))
+        for f, tips in enumerate(self.tips):
+            for j, T in enumerate(tips):
+                values.insert(tip_key(f, j), gtsam.Pose3(T))
+        for c in self.cameras:
+            assert c.points is not None
+            for t in np.flatnonzero(c.kept()).tolist():
+                values.insert(point_key(c.obs.camera, t), c.points[t])
+        return values
+
+    def ordering(self) -> None:
+        """No fixed elimination order: gtsam's (COLAMD) suits the tips and points."""
+        return None
+
+    def measure(self, values: gtsam.Values) -> None:
+        """Take the tips of the solution ``values`` and re-triangulate every track there."""
+        F, S = self.tips.shape[:2]
+        self.tips = np.array([[values.atPose3(tip_key(f, j)).matrix() for j in range(S)]
+                              for f in range(F)])
+        for c in self.cameras:
+            c.triangulate(self.tips)
+
+    def set_weights(self, threshold: float, mu: float) -> int:
+        """Decide every row by its last residual norm (:func:`gnc_tls_weights`); returns how
+        many rows changed side."""
+        changed = 0
+        for c in self.cameras:
+            assert c.norms is not None
+            new = gnc_tls_weights(c.norms, threshold, mu)
+            changed += int(np.sum((new > 0.5) != (c.weights > 0.5)))
+            c.weights = new
+        return changed
+
+    def decisions(self) -> tuple[NDArray[np.int64], int, int]:
+        """``(F, S)`` inliers per frame and camera; outliers (weight at most one half); all
+        observations."""
+        F, S = self.tips.shape[:2]
+        inliers = np.zeros((F, S), dtype=np.int64)
+        for c in self.cameras:
+            inliers[:, c.obs.camera] = np.bincount(c.obs.frames[c.weights > 0.5], minlength=F)[:F]
+        return (inliers, int(sum(np.sum(c.weights <= 0.5) for c in self.cameras)),
+                int(sum(len(c.obs) for c in self.cameras)))
