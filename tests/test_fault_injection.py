@@ -51,6 +51,45 @@ def test_blind_cameras_see_nothing_and_come_back_with_new_ids(sim: Simulation) -
     assert np.all(np.isinf(bound[21:29])) and np.all(np.isfinite(bound[:20]))
 
 
+def test_blind_cameras_that_keep_their_ids(sim: Simulation) -> None:
+    """A re-identifying front end: the same rows as with new ids; each point tracked in the
+    last frame before the gap comes back under its old track's id (also one that left the view
+    during the gap, which the simulation gave a new track); the other tracks keep theirs."""
+    start, stop = 20, 40
+    new = faults.blind(sim, [0], start, stop)
+    kept = faults.blind(sim, [0], start, stop, keep_ids=True)
+    _truth_consistent(kept)
+    before, t_kept = sim.sequence.tracks[0], kept.sequence.tracks[0]
+    outside = (before.frames < start) | (before.frames >= stop)
+    assert np.array_equal(t_kept.frames, before.frames[outside])
+    np.testing.assert_array_equal(t_kept.uv, before.uv[outside])
+    np.testing.assert_array_equal(kept.landmarks[0], new.landmarks[0])
+    points = kept.landmarks[0]
+    last = t_kept.frames == start - 1
+    tracked = dict(zip(points[last].tolist(), t_kept.track_ids[last].tolist(), strict=True))
+    later = t_kept.frames >= stop
+    reidentified = 0
+    for point, old in tracked.items():
+        rows = later & (points == point)
+        if not rows.any():
+            continue
+        first = np.flatnonzero(rows)[0]
+        original = before.track_ids[outside][first]  # the simulation's id of that track
+        assert t_kept.track_ids[first] == old
+        same_track = later & (before.track_ids[outside] == original)
+        assert np.all(t_kept.track_ids[same_track] == old)
+        reidentified += int(original != old)
+    assert reidentified > 0  # points that left the view in the gap and came back
+    for f in np.unique(t_kept.frames).tolist():  # one row per track and frame
+        ids = t_kept.track_ids[t_kept.frames == f]
+        assert len(np.unique(ids)) == len(ids)
+    # with new ids no point comes back under an id it had
+    t_new = new.sequence.tracks[0]
+    assert set(t_new.track_ids[t_new.frames < start].tolist()).isdisjoint(
+        t_new.track_ids[t_new.frames >= stop].tolist())
+    assert kept.sequence.tracks[1].equals(sim.sequence.tracks[1])
+
+
 def test_a_camera_removed_and_the_bound_of_its_segment(sim: Simulation) -> None:
     out = faults.without_camera(sim, 1)
     assert 1 not in out.sequence.tracks

@@ -6,7 +6,9 @@ pixel, whether it is a wrong association) still describes every row, so that the
 bound of the faulted recording can be computed as for any simulation:
 
 - :func:`blind`: cameras that see nothing for a while; a tracker loses its tracks, so every
-  track seen again afterwards comes back under a new id;
+  track seen again afterwards comes back under a new id (or, with ``keep_ids``, a front end
+  that re-identifies the points it was tracking when it went blind: each such point seen again
+  comes back under its old track's id);
 - :func:`without_camera`: a camera that never sees anything;
 - :func:`outlier_burst`: a fraction of one camera's observations replaced by random pixels for
   a while;
@@ -31,7 +33,7 @@ import math
 
 import numpy as np
 
-from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.sequence import Sequence, Tracks
 from apcc_graph.simulation.simulator import Simulation
 
@@ -75,9 +77,11 @@ def _check_camera(sim: Simulation, cam: int) -> None:
                          f"of it; it has cameras {[c + 1 for c in sim.sequence.tracks]}")
 
 
-def blind(sim: Simulation, cams: list[int], start: int, stop: int) -> Simulation:
+def blind(sim: Simulation, cams: list[int], start: int, stop: int, keep_ids: bool = False
+          ) -> Simulation:
     """Cameras ``cams`` see nothing in frames ``start..stop-1``; their tracks seen after the
-    gap come back under new ids."""
+    gap come back under new ids (ids above every id the camera had), or with ``keep_ids`` as a
+    re-identifying front end gives them (:func:`_reidentified`)."""
     _check_span(sim, start, stop)
     out = {}
     for cam in cams:
@@ -85,10 +89,38 @@ def blind(sim: Simulation, cams: list[int], start: int, stop: int) -> Simulation
         r = _rows(sim, cam)
         keep = (r["frames"] < start) | (r["frames"] >= stop)
         r = {name: v[keep] for name, v in r.items()}
-        later = r["frames"] >= stop
-        r["ids"][later] += int(r["ids"].max(initial=-1)) + 1
+        if keep_ids:
+            r["ids"] = _reidentified(r["frames"], r["ids"], r["landmarks"], start, stop)
+        else:
+            later = r["frames"] >= stop
+            r["ids"][later] += int(r["ids"].max(initial=-1)) + 1
         out[cam] = r
     return _with_rows(sim, out)
+
+
+def _reidentified(frames: IntArray, ids: IntArray, landmarks: IntArray, start: int,
+                  stop: int) -> IntArray:
+    """The track ids of one camera's rows (without those of frames ``start..stop-1``) after a
+    front end that re-identifies, after the gap, the points it was tracking in the last frame
+    it saw before it: the first track of each such point after the gap takes the id of the
+    point's track in that frame (a track the simulation kept through the gap keeps its id, as
+    it is; a point that left the view during the gap and came back is recognised too). Other
+    tracks keep their ids (unique per run of sightings, so no two tracks share one)."""
+    out = ids.copy()
+    before = frames < start
+    if not before.any():
+        return out
+    last = frames == frames[before].max()
+    tracked = dict(zip(landmarks[last].tolist(), ids[last].tolist(), strict=True))
+    after = np.flatnonzero(frames >= stop)  # rows in frame order
+    first: dict[int, int] = {}  # point -> its first track id after the gap
+    for row in after.tolist():
+        first.setdefault(int(landmarks[row]), int(ids[row]))
+    for point, old in tracked.items():
+        new = first.get(point)
+        if new is not None and new != old:
+            out[after[ids[after] == new]] = old
+    return out
 
 
 def without_camera(sim: Simulation, cam: int) -> Simulation:
