@@ -196,8 +196,9 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         for factor in priors + model.factors():
             graph.add(factor)
         # Intermediate stages only lead the weights; the truncated quadratic is solved tightly.
-        values, its = optimise(graph, model.values(x), max_iterations,
-                               1e-6 if math.isinf(mu) else 1e-3, model.ordering())
+        values, ordering = model.values(x)
+        values, its = optimise(graph, values, max_iterations, 1e-6 if math.isinf(mu) else 1e-3,
+                               ordering)
         x = thetas_from(values, frames)
         model.measure(values)
         iterations += its
@@ -205,8 +206,8 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     bar.n = len(stages) + 1
     bar.set_postfix_str("marginal sigmas")
     cal = model.calibration
-    blocks, cal_std = marginal_blocks(graph, values, len(x), bending.width, model.ordering(),
-                                      cal, wanted=marginals)
+    blocks, cal_std = marginal_blocks(graph, values, len(x), bending.width, ordering, cal,
+                                      wanted=marginals)
     bar.update()
     bar.close()
     inliers, outliers, observations = model.decisions()

@@ -30,13 +30,11 @@ __all__ = ["ExactTerms", "MeasurementModel", "NoisyTerms", "measurement_model"]
 
 class MeasurementModel(Protocol):
     """What a batch's graph adds for the observations of one sequence, and how it decides
-    outliers: ``start`` binds the sequence and makes the first decisions; each stage solves
-    the priors on the frame vectors plus ``factors()`` from ``values(x)`` (eliminated in
-    ``ordering()``, or gtsam's when ``None``), then ``measure``s the residuals at the solution,
-    from which the next stage's ``set_weights`` decide. ``calibration``: the self-calibrated
-    parameters at the last solution, or ``None``."""
+    outliers: ``start`` binds the sequence and decides first; each stage solves the priors on
+    the frame vectors plus ``factors()`` from ``values(x)``, then ``measure``s the residuals at
+    the solution, from which the next stage's ``set_weights`` decide."""
 
-    calibration: ModelCalibration | None
+    calibration: ModelCalibration | None  # the self-calibration at the last solution
 
     def start(self, sequence: Sequence, x: FloatArray, robustness: Robustness) -> list[float]:
         """First decisions at ``x``; returns the stages (``mu``) before the residual rounds."""
@@ -44,11 +42,9 @@ class MeasurementModel(Protocol):
     def factors(self) -> list[gtsam.NonlinearFactor]:
         """The factors of the observations and the model's own variables."""
 
-    def values(self, x: FloatArray) -> gtsam.Values:
-        """The frame vectors ``x`` and the model's own variables at their last values."""
-
-    def ordering(self) -> gtsam.Ordering | None:
-        """The elimination order of every variable, or ``None`` for gtsam's."""
+    def values(self, x: FloatArray) -> tuple[gtsam.Values, gtsam.Ordering | None]:
+        """The frame vectors ``x`` and the model's own variables at their last values, and
+        their elimination order (``None``: gtsam's)."""
 
     def measure(self, values: gtsam.Values) -> None:
         """Take the model's own variables from the solution ``values``; residuals there."""
@@ -63,14 +59,9 @@ class MeasurementModel(Protocol):
 def measurement_model(robot: Robot, options: GraphOptions, bending: Bending,
                       calibration_sigmas: tuple[float, float] | None = None,
                       mount_sigmas: tuple[float, float] | None = None) -> MeasurementModel:
-    """The exact model when ``options.model_sigma`` is ``None``, else model error as noise.
-
-    ``calibration_sigmas`` and ``mount_sigmas`` (self-calibration,
-    :class:`~apcc_graph.estimation.terms.exact.ExactTerms`) need the exact model.
-
-    Raises:
-        ValueError: self-calibration with a ``model_sigma``.
-    """
+    """The exact model when ``options.model_sigma`` is ``None``, else model error as noise;
+    self-calibration (``calibration_sigmas``, ``mount_sigmas``: :class:`ExactTerms`) needs the
+    exact model, else ValueError."""
     if options.model_sigma is None:
         return ExactTerms(robot, options, bending, calibration_sigmas, mount_sigmas)
     if calibration_sigmas is not None or mount_sigmas is not None:

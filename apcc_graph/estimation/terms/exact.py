@@ -89,18 +89,14 @@ class ExactTerms:
         read the weights at every linearisation)."""
         return self._factors
 
-    def values(self, x: FloatArray) -> gtsam.Values:
-        """The frame vectors ``x`` and the calibrated parameters."""
+    def values(self, x: FloatArray) -> tuple[gtsam.Values, gtsam.Ordering]:
+        """The frame vectors ``x`` and the calibrated parameters; frames in time order (the
+        graph is banded), then the calibration, which every camera's factors share."""
         values = values_from(x, range(self.n_frames))
+        cal = [] if self.calibration is None else self.calibration.keys()
         if self.calibration is not None:
             self.calibration.insert(values)
-        return values
-
-    def ordering(self) -> gtsam.Ordering:
-        """Frames in time order (the graph is banded), then the calibration variables, which
-        every camera's factors share."""
-        cal = [] if self.calibration is None else self.calibration.keys()
-        return gtsam.Ordering([frame_key(f) for f in range(self.n_frames)] + cal)
+        return values, gtsam.Ordering([frame_key(f) for f in range(self.n_frames)] + cal)
 
     def measure(self, values: gtsam.Values) -> None:
         """Take the calibration of the solution ``values``; every residual there."""
@@ -116,8 +112,7 @@ class ExactTerms:
         return sum(t.set_weights(threshold, mu) for t in self.terms)
 
     def decisions(self) -> tuple[NDArray[np.int64], int, int]:
-        """``(F, S)`` inliers per frame and camera; outliers (weight at most one half); all
-        observations."""
+        """``(F, S)`` inliers per frame and camera, outliers (weight <= 1/2), observations."""
         inliers = np.zeros((self.n_frames, self.robot.n_segments), dtype=np.int64)
         for t in self.terms:
             inliers[:, t.camera] = t.inliers_per_frame(self.n_frames)

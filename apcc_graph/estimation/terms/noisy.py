@@ -1,13 +1,10 @@
-"""Model error as noise (``docs/estimation.md``, "Model error as noise"): a real segment is
-only approximately an APCC segment, so the graph has each segment tip's pose ``world_T_tip`` per
-frame as a variable, tied to its base (the previous tip, or the robot's base) through the
-segment's APCC transform at the frame vector by
-:func:`~apcc_graph.factors.kinematic.segment_tie_factor` with the noise
-``GraphOptions.model_sigma``. Each track's 3-D point is a variable too (weak prior), and each
-observation a gtsam C++ projection factor on its camera's tip (the mount as the sensor offset)
-and its point, whitened by its own pixel Jacobian. Outliers are decided without the model first
-(:func:`~apcc_graph.frontend.rotation_pairs.pair_inliers`), then by each observation's residual
-at the solution against its track's point (truncated quadratic).
+"""Model error as noise (``docs/estimation.md``, "Model error as noise"): each segment tip's
+pose per frame is a variable, tied to its base (the previous tip, or the robot's base) through
+the segment's APCC transform at the frame vector with the noise ``GraphOptions.model_sigma``
+(:func:`~apcc_graph.factors.kinematic.segment_tie_factor`); each track's point is a variable
+(weak prior) and each observation a gtsam C++ projection factor on its tip (the mount as the
+sensor offset) and its point. Outliers are decided without the model first
+(:func:`~apcc_graph.frontend.rotation_pairs.pair_inliers`), then by residuals.
 """
 
 from __future__ import annotations
@@ -137,8 +134,9 @@ class NoisyTerms:
                     for t in np.flatnonzero(kept).tolist()]
         return out
 
-    def values(self, x: FloatArray) -> gtsam.Values:
-        """The frame vectors ``x``, the tips and the points of the tracks in the graph."""
+    def values(self, x: FloatArray) -> tuple[gtsam.Values, None]:
+        """The frame vectors ``x``, the tips and the points of the tracks in the graph; gtsam
+        orders them (COLAMD suits the tips and points)."""
         values = values_from(x, range(len(x)))
         for f, tips in enumerate(self.tips):
             for j, T in enumerate(tips):
@@ -147,11 +145,7 @@ class NoisyTerms:
             assert c.points is not None
             for t in np.flatnonzero(c.kept()).tolist():
                 values.insert(point_key(c.obs.camera, t), c.points[t])
-        return values
-
-    def ordering(self) -> None:
-        """No fixed elimination order: gtsam's (COLAMD) suits the tips and points."""
-        return None
+        return values, None
 
     def measure(self, values: gtsam.Values) -> None:
         """Take the tips of the solution ``values`` and re-triangulate every track there."""
@@ -173,8 +167,7 @@ class NoisyTerms:
         return changed
 
     def decisions(self) -> tuple[NDArray[np.int64], int, int]:
-        """``(F, S)`` inliers per frame and camera; outliers (weight at most one half); all
-        observations."""
+        """``(F, S)`` inliers per frame and camera, outliers (weight <= 1/2), observations."""
         F, S = self.tips.shape[:2]
         inliers = np.zeros((F, S), dtype=np.int64)
         for c in self.cameras:
