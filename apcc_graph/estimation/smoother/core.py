@@ -59,7 +59,7 @@ from apcc_graph.estimation.window import (
     start_angles,
     warn_restart,
 )
-from apcc_graph.factors.keys import elimination_group, frame_key
+from apcc_graph.factors.keys import frame_key
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
@@ -117,7 +117,7 @@ class FixedLagSmoother:
         self._model: WindowModel = window_model(robot, o, s, self._window, b,
                                                 self.inlier_sigmas)
         self.gate = self._model.default_gate if s.rotation_gate is None else s.rotation_gate
-        groups = None if o.model_sigma is None or not s.reproducible else elimination_group
+        groups = self._model.elimination if s.reproducible else None
         self._solver = Solver(lambda: new_window(s.lag, s.relinearize_threshold,
                                                  s.factorization, s.reproducible, groups))
         self._recovery = Recovery(robot, o, b, self.inlier_sigmas, self.gate, s.uncertainty,

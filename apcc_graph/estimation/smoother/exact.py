@@ -49,6 +49,7 @@ class ExactTracks:
     refines = True  # a new frame's guess is refined against the known points
     final_steps = 0  # Gauss-Newton steps of the whole window at the end
     default_gate: float | None = None  # the rotation gate's threshold when none is set
+    elimination = None  # iSAM2's own elimination order
 
     def __init__(self, robot: Robot, options: GraphOptions, settings: SmootherOptions,
                  window: Window, bending: Bending, inlier_sigmas: float) -> None:

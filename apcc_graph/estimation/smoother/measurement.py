@@ -14,7 +14,7 @@ how an estimate is read back (:class:`WindowModel`):
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import gtsam
@@ -43,6 +43,7 @@ class WindowModel(Protocol):
     refines: bool  # a new frame's guess is refined against its rows of known points
     final_steps: int  # Gauss-Newton steps of the whole window at the end of the stream
     default_gate: float | None  # the rotation gate's threshold when the settings name none
+    elimination: Callable[[int], int] | None  # the window's elimination groups, if any
 
     @property
     def committed(self) -> int:

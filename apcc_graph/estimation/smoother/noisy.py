@@ -28,7 +28,7 @@ from apcc_graph.estimation.smoother.solver import Additions
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.terms.noisy import forward_tips
 from apcc_graph.estimation.window import Window
-from apcc_graph.factors.keys import frame_key, tip_key
+from apcc_graph.factors.keys import elimination_group, frame_key, tip_key
 from apcc_graph.factors.kinematic import segment_tie_factor
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
@@ -58,6 +58,7 @@ class NoisyTracks:
     refines = False  # a new frame's guess is not refined against known points
     final_steps = FINAL_STEPS
     default_gate: float | None = GATE
+    elimination = staticmethod(elimination_group)  # points, then tips, then frame vectors
 
     def __init__(self, robot: Robot, options: GraphOptions, settings: SmootherOptions,
                  window: Window, bending: Bending, inlier_sigmas: float) -> None:

@@ -1,0 +1,157 @@
+"""One smoother, two measurement models: the stages of an update in their order, the model
+chosen in one place, the fault handling and live working for the model-noise model too, the
+detectors pure, and iSAM2 called by its owner alone."""
+
+from __future__ import annotations
+
+import ast
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from apcc_graph.bench.smoother import FPS, ROBOT_FILE
+from apcc_graph.estimation.blackout import BlackoutWarning
+from apcc_graph.estimation.live import LiveEstimator
+from apcc_graph.estimation.methods import estimate
+from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.smoother import FixedLagSmoother, gaps
+from apcc_graph.io.robot_file import load_robot
+from apcc_graph.simulation import faults
+from apcc_graph.simulation.simulator import simulate
+
+NOISE = GraphOptions(model_sigma=(0.3e-3, math.radians(0.2)))
+ESTIMATION = Path(__file__).resolve().parents[1] / "apcc_graph" / "estimation"
+
+
+def _simulation(frames: int, seed: int):  # noqa: ANN202
+    return simulate(load_robot(ROBOT_FILE), frames, noise_px=1.0, outlier_fraction=0.1,
+                    seed=seed, fps=FPS, scene="room", n_points=1000)
+
+
+@pytest.mark.parametrize("options", [GraphOptions(), NOISE], ids=["exact", "model noise"])
+def test_an_update_runs_its_stages_in_order(options: GraphOptions) -> None:
+    seq = _simulation(6, 3).sequence
+    smoother = FixedLagSmoother(seq.robot, theta0=seq.thetas[0], options=options)
+    calls: list[str] = []
+    model = smoother._model
+    for name in ("judge", "make_room", "retire", "associate", "known_rows", "enter", "observe",
+                 "replaceable", "read"):
+        method = getattr(model, name)
+
+        def spy(*args: object, _name: str = name, _method: object = method) -> object:
+            calls.append(_name)
+            return _method(*args)  # type: ignore[operator]
+
+        setattr(model, name, spy)
+    for f in range(4):
+        calls.clear()
+        smoother.update(seq.frame(f))
+    assert calls == ["judge", "make_room", "retire", "associate", "known_rows", "enter",
+                     "observe", "replaceable", "read"]
+    assert smoother.measurement_model == ("exact" if options.model_sigma is None
+                                          else "model noise")
+
+
+def test_exact_against_model_noise_is_decided_in_one_place() -> None:
+    """Only the two choosers read ``model_sigma`` to pick a measurement model (the batch's and
+    the smoother's); the options record validates it and the chain refuses it."""
+    readers = []
+    for path in sorted(ESTIMATION.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Compare) and isinstance(node.left, ast.Attribute)
+                    and node.left.attr == "model_sigma"
+                    and any(isinstance(c, ast.Constant) and c.value is None
+                            for c in node.comparators)):
+                readers.append(path.relative_to(ESTIMATION).as_posix())
+    # the two choosers; the record's validation; the chain's refusal; the noisy model's check
+    assert set(readers) <= {"smoother/measurement.py", "terms/__init__.py", "options.py",
+                            "methods.py", "smoother/noisy.py"}, readers
+
+
+def test_isam2_is_called_by_its_owner_alone() -> None:
+    """``update`` and ``calculateEstimate`` of gtsam's window appear in the solver only."""
+    callers = set()
+    for path in sorted(ESTIMATION.rglob("*.py")):
+        text = path.read_text()
+        if ".window.update(" in text or "calculateEstimate()" in text or "ISAM2(" in text:
+            callers.add(path.relative_to(ESTIMATION).as_posix())
+    assert callers <= {"smoother/solver.py", "smoother/fixed_lag.py"}, callers
+
+
+def test_no_mixin_and_no_smoother_module_over_400_lines() -> None:
+    core = (ESTIMATION / "smoother" / "core.py").read_text()
+    assert "class FixedLagSmoother:" in core
+    for path in (ESTIMATION / "smoother").glob("*.py"):
+        assert len(path.read_text().splitlines()) <= 400, path
+
+
+def test_the_detectors_are_pure_functions_of_what_they_see() -> None:
+    rows = {0: (np.array([5, 6]), np.zeros((2, 2)), np.zeros((2, 2, 2)))}
+    none_known = lambda cam, ids: np.zeros(len(ids), dtype=bool)  # noqa: E731
+    x = np.array([0.1, 0.2, 0.3])
+    plan = gaps.blackout(10, rows, {}, True, none_known, x, np.full(3, 0.01))
+    assert plan is not None and plan.kind == "blackout" and plan.restart_at == 9
+    assert gaps.blackout(10, rows, rows, True, none_known, x, np.full(3, 0.01)) is None
+    paused, plan = gaps.pause(3.0, 1.5, 1.0, rows, none_known, x, 0.5)
+    assert paused and plan is not None and plan.then == gaps.SECOND_ROUND
+    assert plan.sigma == pytest.approx(min(gaps.LOOSE, 0.5 * math.sqrt(1.5)))
+    all_known = lambda cam, ids: np.ones(len(ids), dtype=bool)  # noqa: E731
+    assert gaps.pause(3.0, 1.5, 1.0, rows, all_known, x, 0.5) == (True, None)
+    assert gaps.pause(3.0, 2.9, 1.0, rows, none_known, x, 0.5) == (False, None)
+    lost = gaps.lost_camera(rows, {1: rows[0]}, none_known, {}, lambda h: False,
+                            lambda: np.diag([1e-6, 1.0, 1e-6]), x, 1)
+    assert lost is None  # camera 0's segment is known to 1 mrad
+    lost = gaps.lost_camera(rows, {1: rows[0]}, none_known, {}, lambda h: False,
+                            lambda: np.diag([1.0, 1e-6, 1e-6]), x, 1)
+    assert lost is not None and lost.camera == 0 and lost.since == 0
+
+
+@pytest.fixture(scope="module")
+def blackout_with_model_noise() -> tuple[object, object, list[warnings.WarningMessage]]:
+    """Every camera blind for half a second, tracks back under new ids, the model-noise
+    smoother."""
+    seq = faults.blind(_simulation(75, 4), [0, 1, 2], 25, 40).sequence
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        est = estimate(seq, method="smoother", theta0=seq.thetas[0], noise_px=1.0, graph=NOISE)
+    return seq, est, caught
+
+
+def test_the_model_noise_smoother_reacquires_after_a_blackout(
+        blackout_with_model_noise: tuple) -> None:
+    """It says so and re-acquires the frames after it with its own batch, as the exact
+    smoother does."""
+    seq, est, caught = blackout_with_model_noise
+    said = [str(w.message) for w in caught if issubclass(w.category, BlackoutWarning)]
+    assert any(m.startswith("frame 40") for m in said), said
+    assert "reacquired" in set(est.status[40:].ravel())
+    assert np.all(np.isfinite(est.thetas)) and np.all(np.isfinite(est.sigmas))
+
+
+@pytest.mark.xfail(strict=True, reason="known fault: on this recording the start check, made "
+                   "through the exact model, takes the model-noise smoother's pull on frame 0 "
+                   "(0.14 deg against a 0.1 deg prior) for a contradiction, and the start "
+                   "search over the first 32 frames (7 of them blind) replaces the right start "
+                   "by one 40 deg off")
+def test_the_model_noise_smoother_keeps_a_right_start_before_a_blackout(
+        blackout_with_model_noise: tuple) -> None:
+    seq, est, _ = blackout_with_model_noise
+    err = np.degrees(np.abs(est.thetas - seq.thetas))
+    assert np.max(err[:25]) < 1.0, np.max(err[:25])
+
+
+def test_the_model_noise_smoother_runs_live() -> None:
+    from test_live import _frames  # the live tests' panning textures
+
+    live = LiveEstimator(load_robot(ROBOT_FILE), np.zeros(3), realtime=False, graph=NOISE)
+    assert live.smoother is not None and live.smoother.measurement_model == "model noise"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = list(live.run(_frames(8)))
+        final = [fr.frame for e in got for fr in e.final] + [fr.frame for fr in live.finish()]
+    assert final == list(range(8))
+    assert np.all(np.isfinite([e.thetas for e in got]))
