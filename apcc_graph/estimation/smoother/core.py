@@ -237,7 +237,7 @@ class FixedLagSmoother:
         rows = recovery.hold_out(rows, t)
         verdicts, agreed = judge_frame(f, rows, previous, self.gate)
         self._model.judge(f - 1, agreed)  # before frame f - 1's pieces are committed
-        recovery.last_seen = f if rows else recovery.last_seen
+        recovery.saw(f, t, rows)
         if self._first is not None:  # frame 0 left at a restart: no verdict on the start
             self._first = self._first.keep(f, t, observations, f == 0 or window.inside(0))
         replayed = recovery.keep(f, t, observations)

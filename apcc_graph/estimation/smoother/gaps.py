@@ -2,7 +2,8 @@
 detectors, each a function of what it observes, each answering with a plan or ``None``.
 
 - :func:`blackout`: tracks return after every camera was blind, and none of them is one the
-  window knows (:func:`~apcc_graph.estimation.blackout.tracks_returned`);
+  window knows (:func:`~apcc_graph.estimation.blackout.tracks_returned`), or the blackout
+  lasted longer than :data:`PAUSE`, whatever the tracks' ids;
 - :func:`pause`: a gap in the recording longer than :data:`PAUSE` (or the lag) with no track
   seen before it coming back (with some, their points tie the new frame to the old ones);
 - :func:`lost_camera`: one camera's tracks come back all new while the others kept seeing,
@@ -81,14 +82,21 @@ class Gap:
 
 
 def blackout(f: int, rows: Rows, previous: Rows, previous_inside: bool, known: Known,
-             estimate: FloatArray, sigmas: FloatArray) -> Gap | None:
-    """Tracks returned at graph frame ``f`` after every camera was blind (``previous``: frame
-    ``f - 1``'s rows, ``previous_inside``: whether it is in the window, ``estimate`` and
-    ``sigmas``: its estimate and component sigmas, NaN where unknown)."""
-    if not (previous_inside and tracks_returned(rows, previous, known)):
+             estimate: FloatArray, sigmas: FloatArray, blind: float) -> Gap | None:
+    """Tracks returned at graph frame ``f`` after every camera was blind for ``blind``
+    seconds (``previous``: frame ``f - 1``'s rows, ``previous_inside``: whether it is in the
+    window, ``estimate`` and ``sigmas``: its estimate and component sigmas, NaN where
+    unknown). A re-acquisition when none of the returning tracks is one the window knows, or,
+    whatever their ids, when the blackout lasted longer than :data:`PAUSE`: the robot may have
+    moved anywhere meanwhile, and a re-identifying front end's old tracks, their points
+    seen from where the robot was, only pull the new frame into a wrong basin from the
+    motion prior's guess (a 1 s blackout with the tracks' ids kept ended 17 deg off)."""
+    if not (previous_inside and rows) or previous:
+        return None
+    if not (blind > PAUSE or tracks_returned(rows, previous, known)):
         return None
     return Gap("blackout", estimate.copy(), float(np.nanmax(sigmas, initial=LOOSE)),
-               restart_at=f - 1)
+               restart_at=f - 1, gap=blind)
 
 
 def pause(t: float, last_time: float | None, lag: float, rows: Rows, known: Known,

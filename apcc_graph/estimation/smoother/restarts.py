@@ -73,7 +73,7 @@ class Recovery:
     Attributes:
         reacquiring: the re-acquisition under way, if any.
         pause_at: the first graph frame after the last pause.
-        last_seen: the last graph frame with tracks.
+        last_seen: the last graph frame with tracks, and ``last_seen_time`` its graph time.
     """
 
     def __init__(self, robot: Robot, options: GraphOptions, bending: Bending,
@@ -85,6 +85,7 @@ class Recovery:
         self.reacquiring: Reacquisition | None = None
         self.pause_at: int | None = None
         self.last_seen: int | None = None
+        self.last_seen_time = 0.0
         self._seen_by: dict[int, int] = {}  # camera -> last graph frame it saw
 
     def covariance(self, h: int) -> FloatArray:
@@ -115,7 +116,8 @@ class Recovery:
         known = self.model.known
         plan = (gaps.blackout(f, rows, previous, window.inside(f - 1), known,
                               window.thetas[f - 1], component_sigmas(self.bending,
-                                                                     self.blocks(f - 1)))
+                                                                     self.blocks(f - 1)),
+                              t - self.last_seen_time)
                 if window.inside(f - 1) else None)
         if plan is None:
             paused, plan = gaps.pause(t, window.last_time, window.lag, rows, known,
@@ -144,6 +146,11 @@ class Recovery:
             self.robot, self.options, self.inlier_sigmas, self.bending, plan.start, plan.sigma,
             then=plan.then, blind=blind, camera=plan.camera, sigmas=plan.sigmas,
             since=plan.since)
+
+    def saw(self, f: int, t: float, rows: Rows) -> None:
+        """Graph frame ``f`` (at ``t``) enters with ``rows``."""
+        if rows:
+            self.last_seen, self.last_seen_time = f, t
 
     def hold_out(self, rows: Rows, t: float) -> Rows:
         """The new frame's rows without those of a camera whose segment is being re-acquired
