@@ -44,8 +44,6 @@ def test_the_chooser_reads_model_sigma_and_keeps_self_calibration_exact(robot: R
         measurement_model(robot, noise, bending, calibration_sigmas=(0.05, 0.1))
     with pytest.raises(ValueError, match="exact model"):
         measurement_model(robot, noise, bending, mount_sigmas=(0.01, 0.001))
-    with pytest.raises(ValueError, match="model_sigma"):
-        NoisyTerms(robot, GraphOptions(), bending)
 
 
 def test_tiny_model_noise_matches_the_exact_model_through_the_same_loop(robot: Robot) -> None:

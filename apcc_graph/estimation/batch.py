@@ -125,9 +125,6 @@ def batch_estimate(
     options = GraphOptions() if options is None else options
     if init not in INITS:
         raise ValueError(f"init = {init!r}: expected one of {INITS}")
-    if calibrate and options.model_sigma is not None:
-        raise ValueError("self-calibration (calibrate) needs the exact model: "
-                         "GraphOptions.model_sigma = None")
     if calibrate and calibration_sigmas is None and mount_sigmas is None:
         raise ValueError("self-calibration (calibrate) with calibration_sigmas = None and "
                          "mount_sigmas = None calibrates nothing: give either")

@@ -1,8 +1,7 @@
 """The batch's solver: one factor graph over a whole sequence, Levenberg-Marquardt (gtsam) in
 stages of outlier decisions, and the marginals, over either measurement model
-(:mod:`apcc_graph.estimation.terms`). :func:`apcc_graph.estimation.batch.batch_estimate` finds
-its start and calls :func:`projection_solve`, and so does the smoother when it re-acquires the
-angles after a blackout (:mod:`apcc_graph.estimation.blackout`).
+(:mod:`apcc_graph.estimation.terms`); :mod:`apcc_graph.estimation.batch` finds its start, and
+the smoother calls it to re-acquire the angles after a blackout.
 """
 
 from __future__ import annotations
@@ -19,15 +18,12 @@ from apcc_graph.estimation.graph import prior_factors, thetas_from
 from apcc_graph.estimation.model_calibration import ModelCalibration
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.terms import measurement_model
-from apcc_graph.estimation.terms.exact import build_terms
+from apcc_graph.estimation.terms.exact import build_terms as build_terms  # the start search's
 from apcc_graph.factors.keys import frame_key
 from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
-
-__all__ = ["BatchReport", "ProjectionSolution", "build_terms", "marginal_blocks", "optimise",
-           "projection_solve"]
 
 
 @dataclass(frozen=True)
@@ -43,8 +39,7 @@ class BatchReport:
 def optimise(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
              relative_tolerance: float = 1e-6, ordering: gtsam.Ordering | None = None
              ) -> tuple[gtsam.Values, int]:
-    """Levenberg-Marquardt from ``values`` (elimination ``ordering``, else gtsam's); the
-    solution and the iterations."""
+    """Levenberg-Marquardt from ``values`` (``ordering``, else gtsam's); solution, iterations."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(relative_tolerance)
@@ -137,8 +132,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
                      mount_sigmas: tuple[float, float] | None = None,
                      start_sigmas: FloatArray | None = None) -> ProjectionSolution:
     """Frame vectors, covariances and inliers of the batch, started at ``initial``, over the
-    measurement model ``options`` choose (:func:`~apcc_graph.estimation.terms.
-    measurement_model`).
+    measurement model ``options`` choose (:func:`~.terms.measurement_model`).
 
     Each stage sets the outlier decisions and solves the priors on the frame vectors and the
     model's terms by Levenberg-Marquardt: the model's leading stages first (the exact model's
@@ -150,7 +144,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         sequence: the sequence.
         initial: ``(F, dim)`` initial frame vectors of ``bending`` (radians).
         theta0: ``(dim,)`` start prior's mean, or ``None``.
-        options: the measurement model.
+        options: the measurement model (exact, or with ``model_sigma`` model error as noise).
         robustness: the outlier threshold and the exact model's GNC schedule (default
             :class:`~apcc_graph.estimation.options.Robustness`: fitted to the residuals at
             ``initial`` by :func:`~apcc_graph.estimation.robust.gnc_start`).
@@ -173,8 +167,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         raise ValueError(f"max_final_rounds = {max_final_rounds}: expected at least 1")
     robustness = Robustness() if robustness is None else robustness
     bending = Bending.fixed(sequence.robot.segments) if bending is None else bending
-    model = measurement_model(sequence.robot, options, bending, calibration_sigmas,
-                              mount_sigmas)
+    model = measurement_model(sequence.robot, options, bending, calibration_sigmas, mount_sigmas)
     frames = range(sequence.n_frames)
     priors = prior_factors(frames, sequence.timestamps, theta0, bending, options,
                            start_sigmas=start_sigmas)

@@ -253,8 +253,7 @@ class Reacquisition:
                         None if any(b is None for b in bases) else np.array(bases))
 
     def solve(self) -> Reacquired:
-        """One batch over the kept frames (:class:`Reacquired`), with the measurement model
-        of ``options`` (model error as noise when its ``model_sigma`` is set)."""
+        """One batch over the kept frames (:class:`Reacquired`), in the model ``options`` pick."""
         sequence = self.sequence()
         theta0, sigma, spreads = (self._searched(sequence) if self.search
                                   else (self.theta0, self.sigma, None))

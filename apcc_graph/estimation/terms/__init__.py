@@ -1,11 +1,9 @@
 """The batch's measurement models behind one interface (:class:`MeasurementModel`): the exact
-model (:mod:`~apcc_graph.estimation.terms.exact`) and model error as noise
-(:mod:`~apcc_graph.estimation.terms.noisy`); :func:`measurement_model` is the one place that
-chooses between them. The batch (:mod:`apcc_graph.estimation.batch_solve`) adds the priors on
-the frame vectors and runs the same robust Levenberg-Marquardt loop over either.
-
-May import: the layers below :mod:`apcc_graph.estimation`, and from it the graph building, the
-options, the outlier decisions and the model calibration; never the batch or the smoother.
+model (:mod:`.exact`) and model error as noise (:mod:`.noisy`); :func:`measurement_model` is the
+one place that chooses between them. The batch (:mod:`apcc_graph.estimation.batch_solve`) runs
+the same robust Levenberg-Marquardt loop over either. May import: the layers below
+:mod:`apcc_graph.estimation`, and from it the graph building, the options, the outlier decisions
+and the model calibration; never the batch or the smoother.
 """
 
 from __future__ import annotations
@@ -24,8 +22,6 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
-
-__all__ = ["ExactTerms", "MeasurementModel", "NoisyTerms", "measurement_model"]
 
 
 class MeasurementModel(Protocol):

@@ -1,9 +1,7 @@
-"""The exact model: every observation projected through the kinematic model's camera pose,
-each track's point eliminated inside the projection factors
-(:class:`~apcc_graph.estimation.graph.CameraTerms`), outliers decided by graduated
-non-convexity (:mod:`apcc_graph.estimation.robust`) from a robust triangulation of every track
-at the start; optionally self-calibrating each segment's ``(k, delta_max)`` and each observed
-camera's mounting, held near the robot's values by priors (``docs/estimation.md``).
+"""The exact model: every observation projected through the model's camera pose, each track's
+point eliminated inside the projection factors (:class:`~apcc_graph.estimation.graph.CameraTerms`),
+graduated non-convexity of the outlier decisions; optionally self-calibrating the segment models
+and camera mounts (``docs/estimation.md``).
 """
 
 from __future__ import annotations
@@ -48,9 +46,8 @@ def build_terms(sequence: Sequence, options: GraphOptions, bending: Bending | No
 
 class ExactTerms:
     """The batch's terms of the exact model (module docstring); ``calibration_sigmas`` (k,
-    radians) and ``mount_sigmas`` (radians, metres), when given, are the standard deviations of
-    the self-calibration's priors (:func:`~apcc_graph.estimation.graph.calibration_factors`,
-    :func:`~apcc_graph.estimation.graph.mount_factors`)."""
+    radians) and ``mount_sigmas`` (radians, metres), when given, self-calibrate with priors of
+    these standard deviations (:func:`~apcc_graph.estimation.graph.calibration_factors`)."""
 
     def __init__(self, robot: Robot, options: GraphOptions, bending: Bending,
                  calibration_sigmas: tuple[float, float] | None = None,
@@ -85,8 +82,7 @@ class ExactTerms:
         return schedule[:-1]
 
     def factors(self) -> list[gtsam.NonlinearFactor]:
-        """The calibration and mount priors, then every camera's projection factors (which
-        read the weights at every linearisation)."""
+        """The calibration and mount priors, then every camera's projection factors."""
         return self._factors
 
     def values(self, x: FloatArray) -> tuple[gtsam.Values, gtsam.Ordering]:

@@ -78,15 +78,12 @@ class _Camera:
 
 
 class NoisyTerms:
-    """The batch's terms with model error as noise (module docstring); ``options.model_sigma``
-    (position m, rotation rad) must be set. Self-calibration is the exact model's only."""
+    """The batch's terms with model error as noise (module docstring), ``options.model_sigma``
+    (position m, rotation rad) set (:func:`~apcc_graph.estimation.terms.measurement_model`)."""
 
     calibration = None
 
     def __init__(self, robot: Robot, options: GraphOptions, bending: Bending) -> None:
-        if options.model_sigma is None:
-            raise ValueError("model error as noise needs GraphOptions.model_sigma (position "
-                             "m, rotation rad); None is the exact model")
         self.robot, self.options, self.bending = robot, options, bending
         position, rotation = options.model_sigma
         self.tie_sigmas = [rotation] * 3 + [position] * 3
@@ -94,9 +91,8 @@ class NoisyTerms:
         self.bases = self.tips = np.empty((0, bending.n_segments, 4, 4))
 
     def start(self, sequence: Sequence, x: FloatArray, robustness: Robustness) -> list[float]:
-        """The first decisions from the images alone, and the points triangulated with them at
-        the model's tips at ``x``; that first stage is a truncated one (``[inf]``;
-        ``robustness.schedule`` is not used)."""
+        """The first decisions from the images alone, the points triangulated with them at the
+        model's tips at ``x``; a truncated stage (``[inf]``; no GNC schedule is used)."""
         base = np.eye(4) if sequence.world_T_base is None else sequence.world_T_base
         self.bases = np.broadcast_to(base, (sequence.n_frames, 4, 4))
         self.tips = forward_tips(self.bending, np.asarray(x, dtype=float), self.bases)
@@ -156,8 +152,7 @@ class NoisyTerms:
             c.triangulate(self.tips)
 
     def set_weights(self, threshold: float, mu: float) -> int:
-        """Decide every row by its last residual norm (:func:`gnc_tls_weights`); returns how
-        many rows changed side."""
+        """Decide every row by its last residual norm; returns how many rows changed side."""
         changed = 0
         for c in self.cameras:
             assert c.norms is not None
