@@ -43,7 +43,7 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         "soak", help="the smoother over a long stream generated on the fly: memory, speed",
         description="Stream simulated frames (generated one at a time, never stored) through "
         "the default smoother; resident memory, update time and RMS error per block, against "
-        "the targets: memory at the end within 10%% of that after 10,000 frames, median update "
+        "the targets: memory at the end within 10% of that after 10,000 frames, median update "
         "over the last 1,000 frames within 1.2x of frames 1,000-2,000.",
         epilog=f"example:\n  {EXAMPLES['soak']}", formatter_class=FORMATTER)
     soak.add_argument("--frames", type=at_least(2000), default=100_000,
@@ -55,8 +55,9 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         "pause, a frozen robot, ...",
         description="Inject each fault (one or all cameras blind for 1 s, the last camera "
         "blind for 3 s, the recording paused for 1.5 s while the robot moves on, each with the "
-        "returning tracks under new ids and under their old ones; a camera that never sees, "
-        "the robot frozen for 5 s, a 10 deg jump, swapped track ids, 50%% outliers for 1 s, a "
+        "returning tracks under new ids and re-identified under their old ones; a camera that "
+        "never sees, the robot frozen for 5 s, a 10 deg jump, swapped track ids, 50% outliers "
+        "for 1 s, a "
         "start 5 deg off) into each seed's simulated recording and run the default smoother. "
         "Per seed the RMS error per segment; across seeds the median and the worst seed, and "
         "each row against its target on every seed: after a fault that hid the tracks, from "
