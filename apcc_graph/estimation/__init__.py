@@ -13,14 +13,20 @@
   reported undetermined when the images cannot tell (:mod:`~apcc_graph.estimation.start_search`).
 - Graph building shared by the batch and the smoother: the projection-model terms
   (:mod:`~apcc_graph.estimation.graph`) and outlier decisions
-  (:mod:`~apcc_graph.estimation.robust`).
-- The batch optimiser (:mod:`~apcc_graph.estimation.batch`).
-- The fixed-lag smoother (:mod:`~apcc_graph.estimation.smoother`): its options
+  (:mod:`~apcc_graph.estimation.robust`); every gtsam key is in :mod:`apcc_graph.factors.keys`.
+- Two measurement models, the exact model and model error as noise, chosen in one place for
+  the batch (:mod:`~apcc_graph.estimation.terms`) and for the smoother
+  (:mod:`~apcc_graph.estimation.smoother.measurement`).
+- The batch optimiser (:mod:`~apcc_graph.estimation.batch`, one robust loop over either
+  model: :mod:`~apcc_graph.estimation.batch_solve`).
+- The fixed-lag smoother (:mod:`~apcc_graph.estimation.smoother`: its stages, the only owner
+  of iSAM2, the gap detectors and the restarts), its options
   (:mod:`~apcc_graph.estimation.smoother_options`), its window
   (:mod:`~apcc_graph.estimation.window`), a new frame's start
   (:mod:`~apcc_graph.estimation.initial_guess`), the tracks it watches
-  (:mod:`~apcc_graph.estimation.projection_tracks`, :mod:`~apcc_graph.estimation.live_tracks`)
-  and its landmarks (:mod:`~apcc_graph.estimation.landmarks`); a run over a recorded sequence
+  (:mod:`~apcc_graph.estimation.projection_tracks`, :mod:`~apcc_graph.estimation.live_tracks`,
+  :mod:`~apcc_graph.estimation.pose_points`) and its landmarks
+  (:mod:`~apcc_graph.estimation.landmarks`); a run over a recorded sequence
   (:mod:`~apcc_graph.estimation.smoother_runs`).
 
 May import: :mod:`apcc_graph.model`, :mod:`apcc_graph.io`, :mod:`apcc_graph.frontend`,

@@ -16,10 +16,9 @@
 waited more than :data:`MAX_BEHIND` beyond the last smoothing while newer frames arrived (then
 the trackers step over it). A tracked frame after which a newer one has already arrived is not
 smoothed, unless the last smoothed frame is :data:`MAX_GAP` old: it is dropped from the
-estimate (counted), and the smoother takes a newer one. The lag stays bounded (never a
-growing queue), and the smoother sees a lower frame rate with the same tracks. (Dropping frames
-before tracking, as a first version did, broke the tracks: with KLT steps three frames long the
-estimate ran 60 to 120 degrees off on ``apcc-graph bench live``.) A camera device delivers its
+estimate (counted), and the smoother takes a newer one: the lag stays bounded, and the
+smoother sees a lower frame rate with the same tracks (dropping frames before tracking broke
+the tracks: 60 to 120 degrees off on ``apcc-graph bench live``). A camera device delivers its
 newest image when asked (OpenCV's buffer of one), so it drops by itself. When fewer frames are
 smoothed than arrive by a margin over the first second already, a :class:`LiveWarning` says
 both rates (:class:`~apcc_graph.estimation.live_guards.RateMonitor`).
@@ -32,18 +31,15 @@ held with the search's sigma, and takes the kept frames first (in real time one 
 after the search where it paused (its frames are not dropped for the search's time). If 4 s do
 not tell the start, a :class:`LiveWarning` says so and the best guess is held loosely.
 
-**Joint limits.** An angle beyond its segment's ``theta_max`` is clamped to the limit and
-flagged (``LiveFrame.clamped``), with a :class:`LiveWarning` naming segment and frame
-(:class:`~apcc_graph.estimation.live_guards.LimitGuard`).
+**Joint limits.** An angle beyond its segment's ``theta_max`` is clamped and flagged, with a
+:class:`LiveWarning` (:class:`~apcc_graph.estimation.live_guards.LimitGuard`).
 
 **Stopping.** ``run(frames, stop=event)`` ends at the next frame boundary once ``event`` is
 set (:func:`~apcc_graph.estimation.live_guards.deferred_interrupts` sets it on Ctrl-C), so an
 interrupt never lands inside a gtsam update; :meth:`LiveEstimator.finish` then smooths the
 window. Stopped while the start is still searched, ``run`` first searches it in the frames kept
-so far (as for a source shorter than the search: a :class:`LiveWarning` when they do not tell
-it) and smooths them, so their estimates are given too. If an exception did leave the
-smoother mid-update, ``finish`` gives nothing rather than touch the inconsistent solver (the
-rows already final were given with the estimates).
+so far (a :class:`LiveWarning` when they do not tell it) and smooths them. If an exception left
+the smoother mid-update, ``finish`` gives nothing rather than touch the inconsistent solver.
 """
 
 from __future__ import annotations
@@ -219,9 +215,7 @@ class LiveEstimator:
                  graph: GraphOptions | None = None) -> None:
         self.robot, self.settings = robot, settings
         self.graph = GraphOptions() if graph is None else graph
-        self.smoother: FixedLagSmoother | None = (
-            None if theta0 is None else FixedLagSmoother(robot, theta0=theta0, settings=settings,
-                                                         options=self.graph))
+        self.smoother = None if theta0 is None else self._smoother(theta0, self.graph)
         self.start_search: str | None = None  # what the start search found, when it ran
         self.trackers = {cam: KLTTracker((c.width, c.height))
                          for cam, c in enumerate(robot.cameras) if c is not None}
@@ -326,9 +320,11 @@ class LiveEstimator:
         self.start_search = (f"start searched in the first {span:.2f} s: "
                              f"{', '.join(f'{math.degrees(v):.2f}' for v in theta0)} deg "
                              f"(sigma {math.degrees(sigma):.2f} deg)")
-        self.smoother = FixedLagSmoother(self.robot, theta0=theta0, settings=self.settings,
-                                         options=replace(self.graph, theta0_sigma=sigma))
+        self.smoother = self._smoother(theta0, replace(self.graph, theta0_sigma=sigma))
         return True
+
+    def _smoother(self, theta0: ArrayLike, graph: GraphOptions) -> FixedLagSmoother:
+        return FixedLagSmoother(self.robot, theta0=theta0, settings=self.settings, options=graph)
 
     def _recording(self) -> Recording:
         """The kept frames as a recording (frame k: the k-th kept)."""
@@ -396,8 +392,8 @@ class LiveEstimator:
 
 def live_estimates(frames: Iterator[Frame], robot: Robot, theta0: ArrayLike | None = None,
                    settings: SmootherOptions | None = None, realtime: bool = True,
-                   stop: threading.Event | None = None, graph: GraphOptions | None = None
-                   ) -> Iterator[LiveEstimate]:
+                   stop: threading.Event | None = None,
+                   graph: GraphOptions | None = None) -> Iterator[LiveEstimate]:
     """:meth:`LiveEstimator.run` of a new :class:`LiveEstimator` (without its
     :meth:`~LiveEstimator.finish`: the last lag's frames then have only their filtered
     estimates)."""

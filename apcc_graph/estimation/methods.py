@@ -237,8 +237,7 @@ def _unknown_start(sequence: Sequence, method: str, graph: GraphOptions,
         start_from_data,
     )
 
-    # The search compares starts through the exact model, whatever the estimator's.
-    search = start_from_data(sequence, options=replace(graph, model_sigma=None),
+    search = start_from_data(sequence, options=graph,
                              max_sigma=MAX_SIGMA if method == "batch" else FIRM_SIGMA,
                              spatial=spatial, robustness=robustness)
     if method == "batch":

@@ -107,8 +107,8 @@ class SmootherOptions:
             (:mod:`~apcc_graph.estimation.rotation_gate`); ``None`` leaves every decision to
             the residuals at the current estimates.
         reproducible: hold the window in
-            :class:`~apcc_graph.estimation.smoother.fixed_lag.FixedLagISAM2`, which gives the same bytes
-            on every run and marginalises in blocks; ``False``: gtsam's
+            :class:`~apcc_graph.estimation.smoother.fixed_lag.FixedLagISAM2`, which gives the
+            same bytes on every run and marginalises in blocks; ``False``: gtsam's
             ``IncrementalFixedLagSmoother``, whose runs differ by about 1e-8 rad once landmarks
             are in the window (docs/estimation.md, "The fixed-lag smoother").
         misfit_seconds: the residual test of the final frames, in blocks of this many seconds

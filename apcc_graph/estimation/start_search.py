@@ -207,7 +207,9 @@ def find_start(sequence: Sequence, seconds: float = START_SECONDS,
     n_frames = max(2, int(np.searchsorted(ts, ts[0] + seconds, side="right")))
     window = sequence.head(min(n_frames, sequence.n_frames))
     span = float(window.timestamps[-1] - window.timestamps[0])
-    options = replace(GraphOptions() if options is None else options, theta0_sigma=prior_sigma)
+    # Starts are compared through the exact model, whatever the estimator's measurement model.
+    options = replace(GraphOptions() if options is None else options, theta0_sigma=prior_sigma,
+                      model_sigma=None)
     bending = parameterisation(sequence.robot, spatial)
     if window.n_frames < 2:
         w = bending.width
