@@ -22,6 +22,9 @@ exactly there). Every figure is measured here, in the same run:
   lag 1 s) and the batch's seconds; and both on one ``frames``-frame recording with the
   compiled kernels and with their numpy reference, the peer (:mod:`apcc_graph.bench.engines`),
   and the smoother with its reproducible window and with gtsam's fixed-lag smoother;
+- with a model noise (``model_sigma``; ``--model-sigma MM,DEG``): the smoother with model error
+  as noise (``smoother-noise``) beside the exact one on the same sequences, RMS per segment,
+  seconds and median update each, to see what the model noise costs where the model is exact;
 - memory: resident set size after 1,000 and after ``memory_frames`` frames of a stream whose
   finished frames are taken out (``pop_final``).
 """
@@ -49,6 +52,7 @@ from apcc_graph.bench.engines import (
 )
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
+from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.evaluation.sequence_bound import LagBound, SequenceBound, lag_bound, sequence_bound
@@ -70,7 +74,9 @@ THETA0_SIGMA = math.radians(0.1)
 WINDOW = 100
 LAG_STEP = 30
 METHODS = ("chain", "smoother", "batch")
-SMOOTHERS = ("smoother",)
+MODEL_NOISE = "smoother-noise"
+"""The smoother with model error as noise (``model_sigma``), beside the exact one."""
+SMOOTHERS = ("smoother", MODEL_NOISE)
 
 
 @dataclass(frozen=True)
@@ -88,6 +94,7 @@ class Run:
     nees: np.ndarray | None = None  # (S,) mean (error / sigma)^2, where sigmas exist
     lag_ratio: np.ndarray | None = None  # (S,) RMS / lag bound at the sampled frames
     lag_window: np.ndarray | None = None  # (S,) worst window of that
+    update_median: float | None = None  # seconds, a smoother's update
 
     @property
     def ratio(self) -> np.ndarray:
@@ -118,6 +125,7 @@ class SmootherBenchmark:
     rss_large: float  # bytes, after memory_frames frames
     engines: tuple[EngineTimes, ...] = ()  # compiled and numpy reference, on one recording
     windows: tuple[WindowTimes, ...] = ()  # reproducible and gtsam's window, the same one
+    model_sigma: tuple[float, float] | None = None  # metres, radians: the smoother-noise row
 
 
 def resident_set_size() -> float:
@@ -148,15 +156,25 @@ def _stream(smoother: FixedLagSmoother, sequence: Sequence,
             times)
 
 
-def _estimators(sim: Simulation, methods: SequenceOf[str], progress: bool
-                ) -> dict[str, tuple[np.ndarray, np.ndarray | None, float]]:
-    """method -> (angles, sigmas or None, seconds)."""
+Estimated = tuple[np.ndarray, np.ndarray | None, float, float | None]
+"""A method's angles ``(F, S)``, sigmas or None, seconds and median update (smoothers)."""
+
+
+def _estimators(sim: Simulation, methods: SequenceOf[str], progress: bool,
+                model_sigma: tuple[float, float] | None = None) -> dict[str, Estimated]:
+    """method -> (angles, sigmas or None, seconds, median update seconds or None); with
+    ``model_sigma`` (metres, radians) also the smoother with model noise (:data:`MODEL_NOISE`) on
+    the same sequence, right after the exact one."""
     seq = sim.sequence
     assert seq.thetas is not None
     theta0 = seq.thetas[0]
-    out: dict[str, tuple[np.ndarray, np.ndarray | None, float]] = {}
+    out: dict[str, Estimated] = {}
+    if model_sigma is not None and MODEL_NOISE not in methods:
+        at = list(methods).index("smoother") + 1 if "smoother" in methods else len(methods)
+        methods = [*methods[:at], MODEL_NOISE, *methods[at:]]
     for method in methods:
         start = time.perf_counter()
+        update: float | None = None
         if method == "chain":
             thetas, sigmas = chain_estimate(seq, theta0=theta0, progress=progress).thetas, None
         elif method == "batch":
@@ -164,16 +182,24 @@ def _estimators(sim: Simulation, methods: SequenceOf[str], progress: bool
             thetas, sigmas = est.thetas, est.sigmas
         elif method == "smoother":
             ps = FixedLagSmoother(seq.robot, lag=LAG, theta0=theta0)
-            thetas, sigmas, _ = _stream(ps, seq, progress, "smoother")
+            thetas, sigmas, times = _stream(ps, seq, progress, "smoother")
+            update = float(np.median(times))
+        elif method == MODEL_NOISE and model_sigma is not None:
+            ps = FixedLagSmoother(seq.robot, lag=LAG, theta0=theta0,
+                                  options=GraphOptions(model_sigma=model_sigma))
+            thetas, sigmas, times = _stream(ps, seq, progress, MODEL_NOISE)
+            update = float(np.median(times))
         else:
             raise ValueError(f"method {method!r}: expected one of {METHODS}")
-        out[method] = (thetas, sigmas, time.perf_counter() - start)
+        out[method] = (thetas, sigmas, time.perf_counter() - start, update)
     return out
 
 
 def _run(case: str, seed: int, method: str, err: np.ndarray, sigmas: np.ndarray | None,
-         seconds: float, bound: SequenceBound, lagged: LagBound | None) -> Run:
-    """One estimator's errors ``(F, S)`` on one sequence, beside its bounds."""
+         seconds: float, bound: SequenceBound, lagged: LagBound | None,
+         update: float | None = None) -> Run:
+    """One estimator's errors ``(F, S)`` on one sequence, beside its bounds (``update``: a
+    smoother's median update, seconds)."""
     nees = None
     if sigmas is not None and np.all(np.isfinite(sigmas)):
         nees = np.mean((err / sigmas) ** 2, axis=0)
@@ -185,13 +211,15 @@ def _run(case: str, seed: int, method: str, err: np.ndarray, sigmas: np.ndarray 
                for s in range(0, len(err), WINDOW)]
         lag_window = np.max(np.array(per) / lagged.window_rms(WINDOW), axis=0)
     return Run(case, seed, method, rms(err), window_rms(err, WINDOW), bound.rms(),
-               bound.window_rms(WINDOW), seconds, nees, lag_ratio, lag_window)
+               bound.window_rms(WINDOW), seconds, nees, lag_ratio, lag_window, update)
 
 
 def _accuracy(robot: Robot, frames: int, seeds: SequenceOf[int], outliers: SequenceOf[float],
-              methods: SequenceOf[str], progress: bool) -> tuple[list[Run], list[float]]:
-    """Every method on every sequence beside its bounds, and the tracks per camera and frame
-    of each sequence."""
+              methods: SequenceOf[str], progress: bool,
+              model_sigma: tuple[float, float] | None = None
+              ) -> tuple[list[Run], list[float]]:
+    """Every method on every sequence beside its bounds (with ``model_sigma``, the smoother
+    with model noise too), and the tracks per camera and frame of each sequence."""
     runs: list[Run] = []
     tracks = []
     for rate in outliers:
@@ -203,11 +231,12 @@ def _accuracy(robot: Robot, frames: int, seeds: SequenceOf[int], outliers: Seque
             tracks.append(np.mean([len(seq.tracks[c]) / frames for c in seq.tracks]))
             bound = sequence_bound(sim, NOISE_PX, THETA0_SIGMA)
             lagged = (lag_bound(sim, NOISE_PX, round(LAG * FPS), THETA0_SIGMA, LAG_STEP)
-                      if any(m in SMOOTHERS for m in methods) else None)
-            for method, (thetas, sigmas, seconds) in _estimators(sim, methods,
-                                                                 progress).items():
+                      if model_sigma is not None or any(m in SMOOTHERS for m in methods)
+                      else None)
+            estimated = _estimators(sim, methods, progress, model_sigma)
+            for method, (thetas, sigmas, seconds, update) in estimated.items():
                 runs.append(_run(case, seed, method, thetas - seq.thetas, sigmas, seconds,
-                                 bound, lagged))
+                                 bound, lagged, update))
     return runs, tracks
 
 
@@ -247,10 +276,13 @@ def run_smoother_benchmark(
     long_frames: int = 3000,
     memory_frames: int = 10_000,
     progress: bool = False,
+    model_sigma: tuple[float, float] | None = None,
 ) -> SmootherBenchmark:
-    """Run every part of the benchmark (see the module docstring)."""
+    """Run every part of the benchmark (see the module docstring); with ``model_sigma``
+    (metres, radians) the accuracy runs add the smoother with model error as noise on the same
+    sequences (:data:`MODEL_NOISE`)."""
     robot = load_robot(ROBOT_FILE)
-    runs, tracks = _accuracy(robot, frames, seeds, outliers, methods, progress)
+    runs, tracks = _accuracy(robot, frames, seeds, outliers, methods, progress, model_sigma)
     early = late = median = p95 = float("nan")
     engines: list[EngineTimes] = []
     windows: list[WindowTimes] = []
@@ -264,7 +296,7 @@ def run_smoother_benchmark(
         rss_small, rss_large = _memory(robot, memory_frames, seeds[0] + 200, progress)
     return SmootherBenchmark(frames, tuple(seeds), float(np.mean(tracks)), tuple(runs),
                              long_frames, early, late, median, p95, memory_frames, rss_small,
-                             rss_large, tuple(engines), tuple(windows))
+                             rss_large, tuple(engines), tuple(windows), model_sigma)
 
 
 
@@ -273,12 +305,17 @@ def _per_seed(r: SmootherBenchmark) -> list[str]:
     out = ["per seed: RMS per segment (deg), the Cramer-Rao bound of the same sequence, "
            "RMS / bound",
            f"  {'case':<13} {'seed':>4} {'method':<18} {'RMS seg 1..3':>23}   "
-           f"{'bound seg 1..3':>23}   {'RMS / bound':>17}  {'seconds':>8}"]
+           f"{'bound seg 1..3':>23}   {'RMS / bound':>17}  {'seconds':>8}  {'update ms':>9}"]
     for run in r.runs:
         out.append(f"  {run.case:<13} {run.seed:>4} {run.method:<18} "
                    f"{_cells(deg(run.rms), '7.3f')}   "
                    f"{_cells(deg(run.bound), '7.3f')}   {_cells(run.ratio, '5.2f')}  "
-                   f"{run.seconds:8.1f}")
+                   f"{run.seconds:8.1f}  "
+                   + (f"{run.update_median * 1e3:9.1f}" if run.update_median is not None
+                      else f"{'-':>9}"))
+    if r.model_sigma is not None:
+        out.append(f"  ({MODEL_NOISE}: the smoother with model error as noise, "
+                   f"{r.model_sigma[0] * 1e3:g} mm / {math.degrees(r.model_sigma[1]):g} deg)")
     return out
 
 

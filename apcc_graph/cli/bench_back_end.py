@@ -14,6 +14,7 @@ from apcc_graph.cli.common import (
     UserError,
     frames_option,
     int_list,
+    model_sigma,
     non_negative,
     seeds_option,
 )
@@ -57,6 +58,10 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                      help="frames of the drift and speed run (0 to skip)")
     smb.add_argument("--memory-frames", type=int, default=10_000,
                      help="frames of the memory run (0 to skip)")
+    smb.add_argument("--model-sigma", type=model_sigma, default=None, metavar="MM,DEG",
+                     help="also run the smoother with model error as noise (tip position mm, "
+                     "rotation deg) beside the exact one on the same sequences "
+                     "(row smoother-noise)")
     smb.set_defaults(run=run_smoother)
 
     _add_selfcal(benches)
@@ -166,7 +171,8 @@ def run_smoother(args: argparse.Namespace) -> str:
     result = run_smoother_benchmark(frames=args.frames, seeds=int_list(args.seeds, "--seeds"),
                                     outliers=outliers, methods=methods,
                                     long_frames=args.long_frames,
-                                    memory_frames=args.memory_frames, progress=True)
+                                    memory_frames=args.memory_frames, progress=True,
+                                    model_sigma=args.model_sigma)
     return format_smoother_benchmark(result)
 
 
