@@ -124,6 +124,14 @@ def blackout_with_model_noise() -> tuple[object, object, list[warnings.WarningMe
     return seq, est, caught
 
 
+def test_a_segment_seen_only_through_the_cameras_beyond_it_gets_a_longer_window() -> None:
+    seen = {0: 9.9, 2: 9.95}  # camera 1 (index 1) never saw
+    assert gaps.weakly_seen(seen, (0, 1, 2), 10.0, 1.0)  # camera 3 sees beyond it
+    assert not gaps.weakly_seen({0: 9.9, 1: 9.9, 2: 9.9}, (0, 1, 2), 10.0, 1.0)
+    assert not gaps.weakly_seen({0: 9.9, 1: 9.9, 2: 8.0}, (0, 1, 2), 10.0, 1.0)  # the last
+    assert gaps.weakly_seen({0: 8.5, 1: 9.9, 2: 9.9}, (0, 1, 2), 10.0, 1.0)
+
+
 def test_the_model_noise_smoother_reacquires_after_a_blackout(
         blackout_with_model_noise: tuple) -> None:
     """It says so and re-acquires the frames after it with its own batch, as the exact

@@ -203,6 +203,8 @@ class FixedLagSmoother:
         rows, verdicts = self._faults(f, t, rows, observations, still.count - 1,
                                       still.last_time or 0.0)
         previous, window.last_time = window.last_time, t
+        window.lag = self._recovery.lag(t, self.settings.lag)
+        self._solver.set_lag(window.lag)
         # 3. make room
         add = Additions()
         self._make_room(add, f, t, rows)

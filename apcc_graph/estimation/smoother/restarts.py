@@ -87,6 +87,7 @@ class Recovery:
         self.last_seen: int | None = None
         self.last_seen_time = 0.0
         self._seen_by: dict[int, int] = {}  # camera -> last graph frame it saw
+        self._seen_at: dict[int, float] = {}  # camera -> the graph time it last saw
 
     def covariance(self, h: int) -> FloatArray:
         """Frame ``h``'s marginal covariance (NaN if gtsam cannot give it)."""
@@ -151,6 +152,14 @@ class Recovery:
         """Graph frame ``f`` (at ``t``) enters with ``rows``."""
         if rows:
             self.last_seen, self.last_seen_time = f, t
+        self._seen_at.update({cam: t for cam, r in rows.items() if len(r[0])})
+
+    def lag(self, t: float, lag: float) -> float:
+        """The window's length at graph time ``t`` for the settings' ``lag``: :data:`~apcc_graph.
+        estimation.smoother.gaps.LONGER` lags while a segment is seen only through the cameras
+        further out (:func:`~apcc_graph.estimation.smoother.gaps.weakly_seen`)."""
+        weak = gaps.weakly_seen(self._seen_at, self.robot.camera_segments, t, lag)
+        return lag * gaps.LONGER if weak else lag
 
     def hold_out(self, rows: Rows, t: float) -> Rows:
         """The new frame's rows without those of a camera whose segment is being re-acquired

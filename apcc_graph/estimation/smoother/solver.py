@@ -97,6 +97,12 @@ class Solver:
         self._replaceable = [int(indices[pos]) for pos in replaceable]
         return True
 
+    def set_lag(self, lag: float) -> None:
+        """Hold the last ``lag`` seconds from the next update on (the reproducible window only;
+        gtsam's own keeps the lag it was made with)."""
+        if isinstance(self.window, FixedLagISAM2):
+            self.window.lag = float(lag)
+
     def restart(self, add: Additions, replaceable: Sequence[int] = ()) -> bool:
         """A new, empty window given ``add`` (its prior and the frames it keeps); ``False``
         when gtsam fails on that too (counted)."""
