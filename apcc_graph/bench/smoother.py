@@ -312,7 +312,7 @@ def _per_seed(r: SmootherBenchmark) -> list[str]:
                    f"{_cells(deg(run.bound), '7.3f')}   {_cells(run.ratio, '5.2f')}  "
                    f"{run.seconds:8.1f}  "
                    + (f"{run.update_median * 1e3:9.1f}" if run.update_median is not None
-                      else f"{'-':>9}"))
+                      else ""))
     if r.model_sigma is not None:
         out.append(f"  ({MODEL_NOISE}: the smoother with model error as noise, "
                    f"{r.model_sigma[0] * 1e3:g} mm / {math.degrees(r.model_sigma[1]):g} deg)")
