@@ -123,13 +123,20 @@ def test_the_window_restarts_holding_the_reacquired_frames(
     every one of them (the blind frame it restarted at has left), their observations of every
     camera in its live tracks, and its estimates stay at the batch's answer (measured: within
     0.07 deg). Its first update held only the priors once: one Gauss-Newton step then pulled
-    every frame onto the start prior, 17 to 49 deg from the batch's answer on the pause."""
+    every frame onto the start prior, 17 to 49 deg from the batch's answer on the pause. A
+    second round, once the frames span 2 s, holds those still inside the window likewise."""
     case = blind[0]
-    assert len(HELD) == 1, HELD
+    assert len(HELD) == 2, HELD
     held = HELD[0]
     assert held["slots"][0] == case.stop and held["window"] == held["slots"], held
     assert held["cameras"] == [3] * len(held["slots"]), held
-    assert held["moved"] < math.radians(0.3), math.degrees(held["moved"])
+    second = HELD[1]
+    assert second["slots"][0] == case.stop and second["slots"][-1] == second["window"][-1]
+    inside = [n for h, n in zip(second["slots"], second["cameras"], strict=True)
+              if h in second["window"]]
+    assert set(second["window"]) <= set(second["slots"]) and inside == [3] * len(inside)
+    for h in (held, second):
+        assert h["moved"] < math.radians(0.3), math.degrees(h["moved"])
 
 
 def test_the_blind_frames_are_bridged_across_the_blackout(

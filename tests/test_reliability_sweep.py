@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from apcc_graph.bench import reliability as rel
+from apcc_graph.bench import reliability_sweep
 from apcc_graph.bench.reliability import (
     KEPT,
     NEVER,
@@ -17,13 +18,9 @@ from apcc_graph.bench.reliability import (
     SETTLE,
     CaseRun,
     FaultCase,
-    SeedRow,
-    Sweep,
     fault_cases,
-    format_sweep,
-    seed_row,
-    selected,
 )
+from apcc_graph.bench.reliability_sweep import SeedRow, Sweep, format_sweep, seed_row, selected
 from apcc_graph.cli import main
 
 FRAMES = 240  # the shortest the command takes: the faults from frame 80
@@ -187,7 +184,7 @@ def test_the_command_line_options(monkeypatch: pytest.MonkeyPatch, capsys) -> No
         return Sweep({"none": [SeedRow(s, np.radians([0.1, 0.1, 0.1])) for s in seeds]}, [],
                      frames, tuple(seeds), scene, model_sigma)
 
-    monkeypatch.setattr(rel, "run_sweep", fake_run)
+    monkeypatch.setattr(reliability_sweep, "run_sweep", fake_run)
     main(["bench", "reliability"])
     assert asked == {"frames": 450, "seeds": list(rel.SEEDS), "scene": "room",
                      "model_sigma": None, "only": None, "workers": 1}

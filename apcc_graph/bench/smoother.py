@@ -6,27 +6,20 @@ frame), 1 px noise, 10% and 30% outliers, 30 fps, smooth motion, several seeds. 
 estimator starts from the true first configuration with a 0.1 deg prior (the chain starts
 exactly there). Every figure is measured here, in the same run:
 
-- the Cramer-Rao bound of each sequence (:mod:`apcc_graph.evaluation.sequence_bound`: every
-  observation once, each track's point a nuisance, 0.1 deg start prior), per segment and per
-  100-frame window;
-- the bound of a fixed-lag smoother (:func:`apcc_graph.evaluation.sequence_bound.lag_bound`): a
-  smoother lets frame f go after frame f + lag, so no later observation can inform its final
-  estimate; sampled every 30 frames, beside the smoother;
-- accuracy: RMS error per segment of the paper's chain, the fixed-lag smoother (lag 1 s) and
-  the batch, each beside the bound of the same sequence: median over seeds of RMS / bound, the worst
-  seed, and the worst 100-frame window; for the smoother also RMS / the lag bound; sigma
-  honesty, the mean of ``(error / sigma)^2`` per segment, where the method reports sigmas;
-- drift over ``long_frames`` frames: the smoother's RMS over frames 100-400 and the
-  last 300;
-- speed: the smoother's ``update`` per frame (median, 95th percentile, 3 cameras,
-  lag 1 s) and the batch's seconds; and both on one ``frames``-frame recording with the
-  compiled kernels and with their numpy reference, the peer (:mod:`apcc_graph.bench.engines`),
-  and the smoother with its reproducible window and with gtsam's fixed-lag smoother;
-- with a model noise (``model_sigma``; ``--model-sigma MM,DEG``): the smoother with model error
-  as noise (``smoother-noise``) beside the exact one on the same sequences, RMS per segment,
-  seconds and median update each, to see what the model noise costs where the model is exact;
-- memory: resident set size after 1,000 and after ``memory_frames`` frames of a stream whose
-  finished frames are taken out (``pop_final``).
+- the Cramer-Rao bound of each sequence (:mod:`apcc_graph.evaluation.sequence_bound`), per
+  segment and per 100-frame window, and the bound of a fixed-lag smoother (no observation after
+  frame f + lag informs frame f: :func:`~apcc_graph.evaluation.sequence_bound.lag_bound`),
+  sampled every 30 frames;
+- accuracy: RMS error per segment of the chain, the smoother (lag 1 s) and the batch, beside the
+  bound: median over seeds of RMS / bound, the worst seed, the worst 100-frame window; for the
+  smoother also RMS / the lag bound; the mean of ``(error / sigma)^2`` per segment;
+- drift: the smoother's RMS over frames 100-400 and the last 300 of ``long_frames``;
+- speed: the smoother's ``update`` per frame (median, 95th percentile) and the batch's seconds,
+  each with the compiled kernels and their numpy reference (:mod:`apcc_graph.bench.engines`),
+  and the smoother's reproducible window against gtsam's fixed-lag smoother;
+- with ``--model-sigma MM,DEG``: the smoother with model error as noise (``smoother-noise``)
+  beside the exact one on the same sequences (RMS, seconds, median update);
+- memory: resident set size after 1,000 and ``memory_frames`` frames (``pop_final``).
 """
 
 from __future__ import annotations
@@ -74,8 +67,7 @@ THETA0_SIGMA = math.radians(0.1)
 WINDOW = 100
 LAG_STEP = 30
 METHODS = ("chain", "smoother", "batch")
-MODEL_NOISE = "smoother-noise"
-"""The smoother with model error as noise (``model_sigma``), beside the exact one."""
+MODEL_NOISE = "smoother-noise"  # the smoother with model error as noise, beside the exact one
 SMOOTHERS = ("smoother", MODEL_NOISE)
 
 
@@ -162,9 +154,8 @@ Estimated = tuple[np.ndarray, np.ndarray | None, float, float | None]
 
 def _estimators(sim: Simulation, methods: SequenceOf[str], progress: bool,
                 model_sigma: tuple[float, float] | None = None) -> dict[str, Estimated]:
-    """method -> (angles, sigmas or None, seconds, median update seconds or None); with
-    ``model_sigma`` (metres, radians) also the smoother with model noise (:data:`MODEL_NOISE`) on
-    the same sequence, right after the exact one."""
+    """method -> :data:`Estimated`; with ``model_sigma`` (metres, radians) :data:`MODEL_NOISE`
+    too, right after the exact smoother."""
     seq = sim.sequence
     assert seq.thetas is not None
     theta0 = seq.thetas[0]
@@ -218,8 +209,8 @@ def _accuracy(robot: Robot, frames: int, seeds: SequenceOf[int], outliers: Seque
               methods: SequenceOf[str], progress: bool,
               model_sigma: tuple[float, float] | None = None
               ) -> tuple[list[Run], list[float]]:
-    """Every method on every sequence beside its bounds (with ``model_sigma``, the smoother
-    with model noise too), and the tracks per camera and frame of each sequence."""
+    """Every method on every sequence beside its bounds, and the tracks per camera and frame
+    of each sequence."""
     runs: list[Run] = []
     tracks = []
     for rate in outliers:
@@ -278,9 +269,7 @@ def run_smoother_benchmark(
     progress: bool = False,
     model_sigma: tuple[float, float] | None = None,
 ) -> SmootherBenchmark:
-    """Run every part of the benchmark (see the module docstring); with ``model_sigma``
-    (metres, radians) the accuracy runs add the smoother with model error as noise on the same
-    sequences (:data:`MODEL_NOISE`)."""
+    """Run every part of the benchmark (module docstring; ``model_sigma``: metres, radians)."""
     robot = load_robot(ROBOT_FILE)
     runs, tracks = _accuracy(robot, frames, seeds, outliers, methods, progress, model_sigma)
     early = late = median = p95 = float("nan")

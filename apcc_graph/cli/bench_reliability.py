@@ -121,7 +121,7 @@ def run_soak(args: argparse.Namespace) -> str:
 
 def run_reliability(args: argparse.Namespace) -> str:
     """Run the reliability sweep; return its tables."""
-    from apcc_graph.bench.reliability import format_sweep, run_sweep
+    from apcc_graph.bench.reliability_sweep import format_sweep, run_sweep
 
     only = None if args.only is None else [w.strip() for w in args.only.split(",") if w.strip()]
     return format_sweep(run_sweep(args.frames, int_list(args.seeds, "--seeds"), args.scene,

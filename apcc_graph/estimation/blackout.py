@@ -19,7 +19,7 @@ basin that Gauss-Newton steps frame by frame miss: on the 210-frame test recordi
 of 6 and 1.3), segments 2 and 3 within 2 and 0.4. The batch's angles become those frames' final
 estimates (status ``"reacquired"``; :class:`Reacquired` holds what it found), and the window
 restarts holding them, under the batch's own priors, their observations replayed into its
-tracks (:mod:`apcc_graph.estimation.smoother_restarts`). The blind frames themselves are kept
+tracks (:mod:`apcc_graph.estimation.smoother.restarts`). The blind frames themselves are kept
 out of the new tracks' first, wrong minimum (the window restarts at the last of them when the
 tracks come back) and, once the batch has solved, :func:`bridged` between the frames before
 the blackout and the first re-acquired frame.

@@ -48,7 +48,7 @@ class GraphOptions:
             component of the tip pose's departure in the tip's frame (docs/estimation.md,
             "Model error as noise"). ``None`` (default) is the exact model: every observation
             is projected through the model's camera poses. The batch and the smoother
-            (:class:`~apcc_graph.estimation.pose_smoother.PoseSmoother`); not the chain.
+            (:mod:`apcc_graph.estimation.smoother.noisy`); not the chain.
     """
 
     threshold_px: float = 1.0

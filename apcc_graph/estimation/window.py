@@ -155,10 +155,6 @@ class Window:
         self.count = 0
         self.last_time: float | None = None
 
-    def check_time(self, frame: int, timestamp: float) -> float:
-        """The new frame's timestamp (seconds), which must come after the previous frame's."""
-        return check_timestamp(frame, timestamp, self.last_time)
-
     def leaving(self, stamp: float) -> list[int]:
         """Frames the next update marginalises: their variables' timestamps are more than the
         lag older than ``stamp``."""
