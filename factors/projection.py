@@ -23,6 +23,17 @@ to their valid range) instead of the chain's. Mount calibration: with a mount ke
 also depends on the camera's ``tip_T_cam`` (a ``Pose3``, key :func:`mount_key`), whose six
 columns come last; its value replaces the chain's mounting.
 
+Points between linearisations: a factor keeps its points, and with ``point_iterations`` of 1
+(the smoother's iSAM2) each linearisation takes one step from them, which suffices while the
+angles move little between linearisations. After a restart the angles of a window can move by
+degrees from one update to the next (new tracks, a loose prior), the kept points then lag far
+behind, up to a point a few centimetres in front of a camera or behind it, and the system at
+such a point is not the eliminated one: rows thousands of pixels off and information of 1e11 to
+1e13 per track (about 1e6 at the optimum), which left iSAM2's factorisation of the window
+"indeterminate". A track with a row the robust decisions kept that is more than :data:`STALE`
+noise sigmas off (or behind a camera) is triangulated afresh, from its rays, and takes that point
+where it costs less.
+
 Jacobian convention: the tangent space of a ``Vector`` is the identity (``x + dx``); that of
 a ``Pose3`` is gtsam's, ``T . Exp(xi)`` with ``xi = (omega, v)`` in the body frame.
 """
@@ -44,9 +55,19 @@ from apcc_graph.factors.reduced_system import (
     residual_norms,
     robust_residual_norms,
 )
-from apcc_graph.factors.track_points import TrackObservations
+from apcc_graph.factors.track_points import TrackObservations, segment_sum
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.segment import calibrated
+
+STALE = 100.0
+"""Whitened residual norm (pixel-noise units) of a kept row above which its track's point is
+triangulated afresh (module docstring, "Points between linearisations")."""
+
+
+def _track_costs(norms: FloatArray, weights: FloatArray, obs: TrackObservations) -> FloatArray:
+    """``(T,)`` each track's weighted cost from its rows' residual norms (``inf`` where a kept
+    row's point is behind its camera)."""
+    return segment_sum(weights * np.where(weights > 0.0, norms, 0.0) ** 2, obs.starts)
 
 
 def compress(H: FloatArray, g: FloatArray, cost: float) -> tuple[FloatArray, FloatArray]:
@@ -142,13 +163,42 @@ class ProjectionFactor:
                chain: CameraChain | None = None) -> ReducedSystem:
         """The reduced system at ``thetas`` (and remember the points); ``chain`` overrides the
         factor's (calibrated segments)."""
-        out = reduced_system(self.obs, self.chain if chain is None else chain, thetas,
-                             self.first, self.weights, self.points, jacobians,
-                             calibration=self.calibrate and jacobians,
-                             point_iterations=self.point_iterations,
-                             mount=bool(self.mount_keys) and jacobians)
+        chain = self.chain if chain is None else chain
+
+        def solve(points: FloatArray | None) -> ReducedSystem:
+            return reduced_system(self.obs, chain, thetas, self.first, self.weights, points,
+                                  jacobians, calibration=self.calibrate and jacobians,
+                                  point_iterations=self.point_iterations,
+                                  mount=bool(self.mount_keys) and jacobians)
+
+        out = solve(self.points)
+        if self.points is not None:
+            restarted = self._restarted_points(out, thetas, chain)
+            if restarted is not None:
+                out = solve(restarted)
         self.points, self.norms = out.points, out.residuals
         return out
+
+    def _restarted_points(self, out: ReducedSystem, thetas: FloatArray,
+                          chain: CameraChain) -> FloatArray | None:
+        """The points with those of :data:`STALE` tracks triangulated afresh at ``thetas``
+        where that lowers their cost; ``None`` when no track is stale (module docstring,
+        "Points between linearisations")."""
+        obs, live = self.obs, self.weights > 0.0
+        stale_rows = live & ~(out.residuals <= STALE)
+        if not stale_rows.any():
+            return None
+        stale = np.unique(obs.tracks[stale_rows])
+        part = obs.select(stale)
+        rows = np.concatenate([np.arange(obs.starts[t], obs.starts[t + 1]) for t in stale])
+        weights = self.weights[rows]
+        fresh = reduced_system(part, chain, thetas, self.first, weights, None, jacobians=False)
+        points = out.points.copy()
+        before = _track_costs(out.residuals[rows], weights, part)
+        after = _track_costs(fresh.residuals, weights, part)
+        better = after < before
+        points[stale[better]] = fresh.points[better]
+        return points if better.any() else None
 
     def residual_norms(self, thetas: FloatArray, robust: bool = False,
                        chain: CameraChain | None = None) -> FloatArray:
