@@ -8,16 +8,6 @@ them. A restart throws the window away and starts a new one from what the caller
 (a prior and the frames it keeps). A gtsam failure in an update is caught and counted
 (:attr:`Solver.recoveries`); the caller decides how to restart.
 
-A restarted window takes trust-region steps (Powell's dogleg, :data:`RESTART_DELTA`) where the
-window of an undisturbed run takes iSAM2's plain Gauss-Newton steps. A restart holds frames
-under a loose prior (a blackout's marginal, a re-acquisition's batch, a failure's one frame),
-often tens of degrees from the truth, and the tracks that come back are new: they tie the frames
-to each other (information 1e6 and more) and their common configuration only weakly (10 to 100,
-a sigma of 6 to 9 degrees: the new points' parallax). One Gauss-Newton step along that direction
-went 49 degrees at once on a blackout's return, and 110 degrees (to -131 degrees) two updates
-later, far outside the model's reach; the tracks' points could no longer follow, and iSAM2 called
-the window indeterminate. The dogleg step stays within a region the model's cost confirms.
-
 The window is held by :class:`~apcc_graph.estimation.smoother.fixed_lag.FixedLagISAM2` (the
 same bytes on every run) or gtsam's own ``IncrementalFixedLagSmoother``.
 """
@@ -37,9 +27,6 @@ UPDATE_FAILURES = (RuntimeError, IndexError)
 fails."""
 QUERY_FAILURES = (RuntimeError, IndexError, ValueError)
 """... and when asked for a variable it does not hold."""
-RESTART_DELTA = 0.1
-"""The dogleg's first trust region in a restarted window (the norm of a step of every variable,
-radians for the frames' vectors); it adapts to the cost's agreement after every step."""
 
 
 class Additions:
@@ -73,23 +60,6 @@ def new_window(lag: float, relinearize_threshold: float, factorization: str = "C
         raise ValueError("new_window: an elimination order needs the reproducible smoother")
     return (FixedLagISAM2(lag, params, groups=groups) if reproducible
             else GtsamFixedLag(lag, params))
-
-
-def damped(window: WindowSolver, delta: float = RESTART_DELTA) -> WindowSolver:
-    """The empty ``window`` taking dogleg steps from a trust region of ``delta`` (module
-    docstring), its other parameters unchanged."""
-    if isinstance(window, FixedLagISAM2):
-        params = window.isam.params()
-    else:
-        params = window.inner.params()
-    dogleg = gtsam.ISAM2DoglegParams()
-    dogleg.setInitialDelta(float(delta))
-    params.setOptimizationParams(dogleg)
-    if isinstance(window, FixedLagISAM2):
-        window.isam = gtsam.ISAM2(params)
-    else:
-        window.inner = gtsam.IncrementalFixedLagSmoother(window.inner.smootherLag(), params)
-    return window
 
 
 class Solver:
@@ -134,10 +104,9 @@ class Solver:
             self.window.lag = float(lag)
 
     def restart(self, add: Additions, replaceable: Sequence[int] = ()) -> bool:
-        """A new, empty window given ``add`` (its prior and the frames it keeps), taking dogleg
-        steps from then on (module docstring); ``False`` when gtsam fails on that too
-        (counted)."""
-        self.window = damped(self._new_window())
+        """A new, empty window given ``add`` (its prior and the frames it keeps); ``False``
+        when gtsam fails on that too (counted)."""
+        self.window = self._new_window()
         self._replaceable = []
         return self.update(add, replaceable)
 
