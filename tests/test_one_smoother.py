@@ -93,13 +93,14 @@ def test_the_detectors_are_pure_functions_of_what_they_see() -> None:
     rows = {0: (np.array([5, 6]), np.zeros((2, 2)), np.zeros((2, 2, 2)))}
     none_known = lambda cam, ids: np.zeros(len(ids), dtype=bool)  # noqa: E731
     x = np.array([0.1, 0.2, 0.3])
-    plan = gaps.blackout(10, rows, {}, True, none_known, x, np.full(3, 0.01), 0.1)
+    small = lambda: np.full(3, 0.01)  # noqa: E731
+    plan = gaps.blackout(10, rows, {}, True, none_known, x, small, 0.1)
     assert plan is not None and plan.kind == "blackout" and plan.restart_at == 9
-    assert gaps.blackout(10, rows, rows, True, none_known, x, np.full(3, 0.01), 1.0) is None
+    assert gaps.blackout(10, rows, rows, True, none_known, x, small, 1.0) is None
     all_known = lambda cam, ids: np.ones(len(ids), dtype=bool)  # noqa: E731
     # returning ids are taken for a tie across a short blackout, not across a long one
-    assert gaps.blackout(10, rows, {}, True, all_known, x, np.full(3, 0.01), 0.2) is None
-    assert gaps.blackout(10, rows, {}, True, all_known, x, np.full(3, 0.01), 1.0) is not None
+    assert gaps.blackout(10, rows, {}, True, all_known, x, small, 0.2) is None
+    assert gaps.blackout(10, rows, {}, True, all_known, x, small, 1.0) is not None
     paused, plan = gaps.pause(3.0, 1.5, 1.0, rows, none_known, x, 0.5)
     assert paused and plan is not None and plan.then == gaps.SECOND_ROUND
     assert plan.sigma == pytest.approx(min(gaps.LOOSE, 0.5 * math.sqrt(1.5)))

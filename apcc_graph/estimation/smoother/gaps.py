@@ -91,20 +91,22 @@ class Gap:
 
 
 def blackout(f: int, rows: Rows, previous: Rows, previous_inside: bool, known: Known,
-             estimate: FloatArray, sigmas: FloatArray, blind: float) -> Gap | None:
+             estimate: FloatArray, sigmas: Callable[[], FloatArray], blind: float
+             ) -> Gap | None:
     """Tracks returned at graph frame ``f`` after every camera was blind for ``blind``
     seconds (``previous``: frame ``f - 1``'s rows, ``previous_inside``: whether it is in the
-    window, ``estimate`` and ``sigmas``: its estimate and component sigmas, NaN where
-    unknown). A re-acquisition when none of the returning tracks is one the window knows, or,
-    whatever their ids, when the blackout lasted longer than :data:`PAUSE`: the robot may have
-    moved anywhere meanwhile, and a re-identifying front end's old tracks, their points
-    seen from where the robot was, only pull the new frame into a wrong basin from the
-    motion prior's guess (a 1 s blackout with the tracks' ids kept ended 17 deg off)."""
+    window, ``estimate`` its vector, ``sigmas()`` its component sigmas, NaN where unknown,
+    asked for only when the tracks did return). A re-acquisition when none of the returning
+    tracks is one the window knows, or, whatever their ids, when the blackout lasted longer
+    than :data:`PAUSE`: the robot may have moved anywhere meanwhile, and a re-identifying front
+    end's old tracks, their points seen from where the robot was, only pull the new frame into
+    a wrong basin from the motion prior's guess (a 1 s blackout with the tracks' ids kept ended
+    17 deg off)."""
     if not (previous_inside and rows) or previous:
         return None
     if not (blind > PAUSE or tracks_returned(rows, previous, known)):
         return None
-    return Gap("blackout", estimate.copy(), float(np.nanmax(sigmas, initial=LOOSE)),
+    return Gap("blackout", estimate.copy(), float(np.nanmax(sigmas(), initial=LOOSE)),
                then=SECOND_ROUND, restart_at=f - 1, gap=blind)
 
 

@@ -116,8 +116,8 @@ class Recovery:
             return
         known = self.model.known
         plan = (gaps.blackout(f, rows, previous, window.inside(f - 1), known,
-                              window.thetas[f - 1], component_sigmas(self.bending,
-                                                                     self.blocks(f - 1)),
+                              window.thetas[f - 1],
+                              lambda: component_sigmas(self.bending, self.blocks(f - 1)),
                               t - self.last_seen_time)
                 if window.inside(f - 1) else None)
         if plan is None:
