@@ -336,7 +336,7 @@ def test_factorization_reaches_the_smoother(given: list[str], expected: str) -> 
 
     args = build_parser().parse_args(["estimate", "data/sequences/planar_three", "--method",
                                       "smoother", *given, "--out", "x"])
-    assert _options(args)["settings"].factorization == expected
+    assert _options(args)["settings"].window.factorization == expected
 
 
 def test_a_list_option_may_start_with_a_negative_value(

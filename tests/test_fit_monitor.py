@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from apcc_graph.estimation.model_fit import ModelFitWarning
 from apcc_graph.estimation.options import Robustness
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import FaultOptions, SmootherOptions, WindowOptions
 from apcc_graph.io import load_robot
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
@@ -85,25 +85,30 @@ def test_a_mount_the_images_contradict_warns_once_and_names_its_camera() -> None
     assert text.startswith("frames 0-59 (0.00-1.97 s)") and "segment 2's camera" in text
 
 
+UNMONITORED = SmootherOptions(faults=FaultOptions(misfit_seconds=None))
+"""The smoother without its residual test."""
+
+
 def test_the_monitor_is_off_when_asked() -> None:
     seq = _sequence().head(40)
     off = _mount_off(seq.robot, 1)
-    smoother, said, _ = _stream(off, seq, settings=SmootherOptions(misfit_seconds=None))
+    smoother, said, _ = _stream(off, seq, settings=UNMONITORED)
     assert smoother.model_fits == [] and not said
     smoother, said, _ = _stream(off, seq, robustness=Robustness(misfit_alarm=None))
     assert smoother.model_fits == [] and not said
     for bad in (0.0, -1.0, math.inf, math.nan):
-        with pytest.raises(ValueError, match="misfit_seconds"):
-            SmootherOptions(misfit_seconds=bad)
+        with pytest.raises(ValueError, match="FaultOptions.misfit_seconds"):
+            FaultOptions(misfit_seconds=bad)
 
 
 def test_qr_factorization_gives_the_same_smoother() -> None:
     seq = _sequence().head(45)
-    _, _, cholesky = _stream(seq.robot, seq, SmootherOptions(misfit_seconds=None))
-    _, _, qr = _stream(seq.robot, seq, SmootherOptions(factorization="QR",
-                                                       misfit_seconds=None))
+    _, _, cholesky = _stream(seq.robot, seq, UNMONITORED)
+    _, _, qr = _stream(seq.robot, seq, replace(UNMONITORED,
+                                               window=WindowOptions(factorization="QR")))
     # the same least-squares problem solved another way: the same answer to far below the
     # noise (the angles' sigmas are about 0.1 deg here)
     assert np.degrees(np.max(np.abs(qr - cholesky))) < 1e-3
-    with pytest.raises(ValueError, match="factorization = 'LU': expected one of CHOLESKY, QR"):
-        SmootherOptions(factorization="LU")
+    with pytest.raises(ValueError, match="WindowOptions.factorization = 'LU': expected one of "
+                       "CHOLESKY, QR"):
+        WindowOptions(factorization="LU")

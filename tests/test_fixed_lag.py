@@ -129,11 +129,11 @@ def test_the_bench_times_both_windows_on_one_recording() -> None:
     from pathlib import Path
 
     from apcc_graph.bench.engines import format_window_times, window_times
-    from apcc_graph.estimation.smoother_options import SmootherOptions
+    from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
     from apcc_graph.io.sequence_folder import load_sequence
 
     sample = load_sequence(Path(__file__).resolve().parents[1] / "data/sequences/planar_three")
-    rows = window_times(sample.head(45), SmootherOptions(uncertainty=False))
+    rows = window_times(sample.head(45), SmootherOptions(window=WindowOptions(uncertainty=False)))
     assert [r.window for r in rows] == ["reproducible", "gtsam"]
     assert all(0.0 < r.update_median <= r.update_p95 for r in rows)
     assert np.max(np.abs(rows[0].thetas - rows[1].thetas)) < np.radians(0.05)
@@ -145,10 +145,11 @@ def test_the_smoother_chooses_its_window_by_its_options() -> None:
     from apcc_graph.bench.smoother import ROBOT_FILE
     from apcc_graph.estimation.smoother import FixedLagSmoother
     from apcc_graph.estimation.smoother.fixed_lag import GtsamFixedLag
-    from apcc_graph.estimation.smoother_options import SmootherOptions
+    from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
     from apcc_graph.io.robot_file import load_robot
 
     robot = load_robot(ROBOT_FILE)
     assert isinstance(FixedLagSmoother(robot)._smoother, FixedLagISAM2)
-    peer = FixedLagSmoother(robot, settings=SmootherOptions(reproducible=False))
+    gtsam_window = SmootherOptions(window=WindowOptions(reproducible=False))
+    peer = FixedLagSmoother(robot, settings=gtsam_window)
     assert isinstance(peer._smoother, GtsamFixedLag)

@@ -15,7 +15,7 @@ import pytest
 
 import apcc_graph
 from apcc_graph.cli import main
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
 from apcc_graph.io import load_sequence, save_sequence
 from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.faults import dropped_frames
@@ -80,7 +80,8 @@ def test_a_lag_of_a_few_frames(sample: Sequence) -> None:
     came, and the next frames must still read its estimate."""
     steady = shortened(sample, 0.0)
     estimate = apcc_graph.estimate(steady, method="smoother", theta0=sample.thetas[0],
-                                   noise_px=0.5, settings=SmootherOptions(lag=0.1))
+                                   noise_px=0.5,
+                                   settings=SmootherOptions(window=WindowOptions(lag=0.1)))
     assert np.all(np.isfinite(estimate.thetas))
     assert np.degrees(estimate.rms(steady.thetas)).max() < 1.0
 
@@ -146,7 +147,7 @@ def test_a_pause_while_the_robot_moves_is_said_and_reacquired(
     with pytest.warns(BlackoutWarning, match=r"frame 100 .* paused for 1\.5\d s"):
         estimate = apcc_graph.estimate(paused, method="smoother", theta0=paused.thetas[0],
                                        noise_px=1.0, theta0_sigma=np.radians(0.1),
-                                       settings=SmootherOptions(lag=lag))
+                                       settings=SmootherOptions(window=WindowOptions(lag=lag)))
     after = slice(100, 160)
     err = np.degrees(np.sqrt(np.mean((estimate.thetas[after] - paused.thetas[after]) ** 2,
                                      axis=0)))

@@ -17,7 +17,7 @@ import pytest
 
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import LandmarkOptions, SmootherOptions, WindowOptions
 from apcc_graph.io.sequence_folder import load_sequence
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data/sequences/planar_three"
@@ -39,7 +39,8 @@ def sample():
 
 
 def test_the_smoother_without_landmarks_gives_the_same_bytes_twice(sample) -> None:
-    settings = SmootherOptions(landmarks=False, uncertainty=False)
+    settings = SmootherOptions(window=WindowOptions(uncertainty=False),
+                               landmarks=LandmarkOptions(enabled=False))
     a, b = _smoothed(sample, 90, settings), _smoothed(sample, 90, settings)
     assert a.tobytes() == b.tobytes()
 
@@ -53,6 +54,6 @@ def test_the_batch_gives_the_same_bytes_twice(sample) -> None:
 
 
 def test_the_default_smoother_gives_the_same_bytes_twice(sample) -> None:
-    settings = SmootherOptions(uncertainty=False)
+    settings = SmootherOptions(window=WindowOptions(uncertainty=False))
     a, b = (_smoothed(sample, sample.n_frames, settings) for _ in range(2))
     assert a.tobytes() == b.tobytes()

@@ -176,7 +176,7 @@ def test_the_smoothers_gate_does_not_depend_on_its_estimate() -> None:
     observation (each pair's RANSAC draws its own samples)."""
     from apcc_graph.bench.smoother import FPS, N_POINTS, ROBOT_FILE
     from apcc_graph.estimation.smoother import FixedLagSmoother
-    from apcc_graph.estimation.smoother_options import SmootherOptions
+    from apcc_graph.estimation.smoother_options import FaultOptions, SmootherOptions
     from apcc_graph.frontend.rotation_pairs import pair_inliers
     from apcc_graph.io.robot_file import load_robot
     from apcc_graph.simulation.simulator import simulate
@@ -188,7 +188,7 @@ def test_the_smoothers_gate_does_not_depend_on_its_estimate() -> None:
     verdicts = []
     for offset in (0.0, np.radians(3.0)):
         smoother = FixedLagSmoother(robot, theta0=seq.thetas[0] + offset,
-                                    settings=SmootherOptions(rotation_gate=0.02))
+                                    settings=SmootherOptions(faults=FaultOptions(rotation_gate=0.02)))
         for f in range(seq.n_frames):
             smoother.update(seq.frame(f))
         verdicts.append({(cam, r.frame, int(i)): int(v)

@@ -8,7 +8,7 @@ commit e8f4598 (degrees unless stated).
 from __future__ import annotations
 
 import math
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,12 @@ from apcc_graph.estimation.initial_guess import (
 from apcc_graph.estimation.live_tracks import LiveTracks
 from apcc_graph.estimation.options import BatchOptions, GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import (
+    LandmarkOptions,
+    SmootherOptions,
+    TrackOptions,
+    WindowOptions,
+)
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.estimation.window import RestartWarning, SmootherFrame
 from apcc_graph.evaluation.sequence_bound import sequence_bound
@@ -549,14 +554,15 @@ def sim60(robot: Robot) -> Simulation:
     return room(robot, 60, 1.0, seed=1)
 
 
+QUICK = SmootherOptions(window=WindowOptions(uncertainty=False))
+"""The smoother without marginal sigmas."""
+
+
 def stream(seq: Sequence, frames: list[FrameObservations] | None = None, lag: float = 1.0,
            **kwargs: object) -> dict:
     """Feed the frames one by one, popping final frames after every update."""
     kwargs.setdefault("theta0", seq.thetas[0])
-    names = {f.name for f in fields(SmootherOptions)}
-    settings = SmootherOptions(**{k: kwargs.pop(k) for k in list(kwargs) if k in names})
-    smoother = FixedLagSmoother(seq.robot, lag=lag, settings=settings,
-                                **kwargs)  # type: ignore[arg-type]
+    smoother = FixedLagSmoother(seq.robot, lag=lag, **kwargs)  # type: ignore[arg-type]
     frames = [seq.frame(f) for f in range(seq.n_frames)] if frames is None else frames
     filtered, popped = [], []
     for obs in frames:
@@ -569,7 +575,7 @@ def stream(seq: Sequence, frames: list[FrameObservations] | None = None, lag: fl
 
 @pytest.fixture(scope="module")
 def run60(sim60: Simulation) -> dict:
-    out = stream(sim60.sequence, uncertainty=False)
+    out = stream(sim60.sequence, settings=QUICK)
     smoother = out["smoother"]
     out["committed"] = smoother.committed_observations
     out["again"] = smoother.finish()
@@ -646,7 +652,7 @@ def test_one_pixel_noise_on_another_seed(robot: Robot) -> None:
     5.3x the bound) when frames 1-3 had no vision and started from the previous frame's
     angles; the 1-point front end now starts them."""
     sim = room(robot, 60, 1.0, seed=3)
-    out = stream(sim.sequence, uncertainty=False)
+    out = stream(sim.sequence, settings=QUICK)
     to_bound = compare_with_bound(sim, thetas(out["final"]))
     # Measured (seed 3): RMS 0.097, 0.126, 0.036 deg = 0.95, 1.12, 0.30x the bound.
     assert np.all(to_bound < 2.0), to_bound
@@ -666,7 +672,7 @@ def test_noise_free_sequence_without_motion_prior_recovers_the_truth(
     taken at angles 1.4-4.5 deg off. The 1-point front end now starts those frames."""
     seq = sim30_clean.sequence
     options = GraphOptions(motion_sigma=None, theta0_sigma=1e-6)
-    out = stream(seq, lag=1.0, options=options, uncertainty=False)
+    out = stream(seq, lag=1.0, options=options, settings=QUICK)
     error = float(np.max(deg(np.abs(thetas(out["final"]) - seq.thetas))))
     # Measured: 1.3e-14 deg, no observation judged an outlier.
     assert error < 1e-6, (f"{error:.3g} deg; {out['smoother'].outlier_observations} of "
@@ -680,7 +686,7 @@ def test_noise_free_sequence_reaches_the_optimum_with_the_motion_prior(
     deg); the smoother reaches that optimum."""
     seq = sim30_clean.sequence
     options = GraphOptions()
-    out = stream(seq, lag=1.0, options=options, uncertainty=False)
+    out = stream(seq, lag=1.0, options=options, settings=QUICK)
     optimum = batch_estimate(seq, theta0=seq.thetas[0], initial=seq.thetas, options=options,
                              marginals=False)
     final = thetas(out["final"])
@@ -694,7 +700,7 @@ def test_a_frame_without_tracks_is_carried(sim60: Simulation, run60: dict) -> No
     gap, n = 30, 45
     frames = [seq.frame(f) for f in range(n)]
     frames[gap] = blank(frames[gap])
-    out = stream(seq, frames, uncertainty=False)
+    out = stream(seq, frames, settings=QUICK)
     assert np.all(np.isfinite(thetas(out["filtered"])))
     assert np.all(np.isfinite(thetas(out["final"])))
     assert [fr.frame for fr in out["final"]] == list(range(n))
@@ -730,7 +736,7 @@ def test_a_frame_without_tracks_without_the_motion_prior(robot: Robot) -> None:
     assert np.all(np.isfinite(thetas(filtered))) and np.all(np.isfinite(thetas(final)))
     assert list(filtered[10].status) == ["predicted"] * 3
     # Nothing but the loose prior (30 deg) holds it.
-    np.testing.assert_allclose(filtered[10].sigmas, smoother.loose_sigma, rtol=1e-3)
+    np.testing.assert_allclose(filtered[10].sigmas, smoother.window.loose_sigma, rtol=1e-3)
     assert np.all(np.isfinite(filtered[11].sigmas))
 
 
@@ -758,7 +764,7 @@ def test_a_gtsam_failure_restarts_the_smoother_and_it_goes_on(sim60: Simulation,
     estimate and keeps every frame."""
     seq = sim60.sequence
     smoother = FixedLagSmoother(seq.robot, theta0=seq.thetas[0],
-                                settings=SmootherOptions(uncertainty=False))
+                                settings=QUICK)
     for f in range(30):
         smoother.update(seq.frame(f))
     smoother._smoother = _FailOnce(smoother._smoother, error)
@@ -788,7 +794,7 @@ def seq_short(robot: Robot) -> Sequence:
 
 def test_non_increasing_timestamps_are_refused(seq_short: Sequence) -> None:
     smoother = FixedLagSmoother(seq_short.robot, theta0=seq_short.thetas[0],
-                                settings=SmootherOptions(uncertainty=False))
+                                settings=QUICK)
     smoother.update(seq_short.frame(0))
     smoother.update(seq_short.frame(1))
     second = seq_short.frame(1)
@@ -817,12 +823,12 @@ def test_observations_of_a_segment_without_camera_are_refused(robot: Robot,
     ({"lag": float("inf")}, "lag"),
     ({"theta0": [0.0, 0.0]}, r"theta0 has shape \(2,\)"),
     ({"theta0": np.zeros((1, 3))}, "theta0"), ({"theta0": [0.0, float("nan"), 0.0]}, "theta0"),
-    ({"settings": {"min_live_rows": 1}}, "min_live_rows"),
+    ({"settings": {"min_live_rows": 1}}, "TrackOptions.min_live_rows"),
 ])
 def test_bad_smoother_arguments_are_refused(robot: Robot, options: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         if "settings" in options:
-            options = {"settings": SmootherOptions(**options["settings"])}
+            options = {"settings": SmootherOptions(tracks=TrackOptions(**options["settings"]))}
         FixedLagSmoother(robot, **options)
 
 
@@ -833,7 +839,7 @@ def test_a_robot_is_required() -> None:
 
 # ------------------------------------------------------------------------ estimate() entry
 def test_estimate_with_the_smoother(seq_short: Sequence) -> None:
-    quick = SmootherOptions(uncertainty=False)
+    quick = QUICK
     est = apcc_graph.estimate(seq_short, method="smoother", theta0=seq_short.thetas[0],
                               settings=quick)
     assert est.method == "smoother"
@@ -868,7 +874,9 @@ def test_landmarks_keep_the_smoother_near_the_bound(sim200: Simulation) -> None:
     bound = sequence_bound(sim200, 1.0, math.radians(0.1))
     ratios = {}
     for landmarks in (False, True):
-        out = stream(seq, uncertainty=False, landmarks=landmarks, stagger_cuts=landmarks)
+        out = stream(seq, settings=SmootherOptions(
+            window=WindowOptions(uncertainty=False), tracks=TrackOptions(stagger_cuts=landmarks),
+            landmarks=LandmarkOptions(enabled=landmarks)))
         error = thetas(out["final"]) - seq.thetas
         ratios[landmarks] = np.sqrt(np.mean(error**2, axis=0)) / bound.rms()
         assert out["smoother"].recoveries == 0
@@ -884,7 +892,7 @@ def test_smoother_equals_the_batch_on_a_sequence_shorter_than_the_lag(robot: Rob
     as the batch's does, so their answers agree far below the error itself."""
     sim = room(robot, 25, 1.0, seed=4)
     seq = sim.sequence
-    out = stream(seq, lag=2.0, uncertainty=False)
+    out = stream(seq, lag=2.0, settings=QUICK)
     batch = batch_estimate(seq, theta0=seq.thetas[0], init="chain", marginals=False)
     final = thetas(out["final"])
     difference = float(np.max(deg(np.abs(final - batch.thetas))))

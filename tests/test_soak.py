@@ -11,7 +11,7 @@ import pytest
 
 from apcc_graph.cli import main
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
 from apcc_graph.io import load_robot
 from apcc_graph.simulation.stream import SimulatedStream
 
@@ -33,7 +33,7 @@ def test_a_long_stream_keeps_bounded_state() -> None:
     robot = load_robot(ROBOT)
     stream = SimulatedStream(robot, noise_px=1.0, outlier_fraction=0.1, seed=5, n_points=3000)
     sm = FixedLagSmoother(robot, lag=1.0, theta0=stream.thetas(0),
-                          settings=SmootherOptions(uncertainty=False))
+                          settings=SmootherOptions(window=WindowOptions(uncertainty=False)))
     truth: dict[int, np.ndarray] = {}
     returned, errors, sizes = [], [], {}
     for f in range(FRAMES):
@@ -49,7 +49,7 @@ def test_a_long_stream_keeps_bounded_state() -> None:
         # by now); reused, the slots stay at the most factors the window ever held at once
         assert size["gtsam factor slots"] <= 3 * size["gtsam factors"], size
         assert size["frames in the window"] <= 32 and size["track bases"] <= 32, size
-        assert size["landmark points"] <= 3 * sm.settings.max_landmarks, size
+        assert size["landmark points"] <= 3 * sm.settings.landmarks.max_per_camera, size
         assert size["unreturned finals"] == 0
     assert returned == list(range(len(returned))) and len(returned) >= FRAMES - 35
     assert len(truth) <= 35  # only frames still in the window wait for their estimate

@@ -24,7 +24,7 @@ from apcc_graph.estimation.graph import camera_chain, camera_observations, limit
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 from apcc_graph.estimation.options import BatchOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
 from apcc_graph.evaluation.sequence_bound import sequence_bound
 from apcc_graph.factors.keys import frame_key
 from apcc_graph.factors.projection import ProjectionFactor
@@ -340,7 +340,8 @@ def test_spatial_api_refusals(robot) -> None:
     with pytest.raises(TypeError, match="calibration"):  # misspelled: refused by name
         BatchOptions(calibration=True)
     with pytest.raises(TypeError, match="expected BatchOptions for method 'batch'"):
-        estimate(seq, theta0=theta0, spatial=True, settings=SmootherOptions(lag=0.5))
+        estimate(seq, theta0=theta0, spatial=True,
+                 settings=SmootherOptions(window=WindowOptions(lag=0.5)))
 
 
 def test_a_spatial_robot_is_reacquired_after_every_camera_went_blind(robot) -> None:

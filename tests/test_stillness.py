@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import FaultOptions, SmootherOptions
 from apcc_graph.estimation.stillness import SPREAD_LIMIT, StillFrames, flow_statistics
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.io import load_robot
@@ -117,11 +117,11 @@ def test_nothing_is_held_when_the_base_moves_the_slot_left_or_holding_is_off() -
 
 
 def test_options_refuse_a_bad_stillness_setting() -> None:
-    with pytest.raises(ValueError, match="still_frames = -1"):
-        SmootherOptions(still_frames=-1)
-    with pytest.raises(ValueError, match="still_chi2 = 0.0"):
-        SmootherOptions(still_chi2=0.0)
-    assert SmootherOptions(still_frames=None).still_frames is None
+    with pytest.raises(ValueError, match="FaultOptions.still_frames = -1"):
+        FaultOptions(still_frames=-1)
+    with pytest.raises(ValueError, match="FaultOptions.still_chi2 = 0.0"):
+        FaultOptions(still_chi2=0.0)
+    assert FaultOptions(still_frames=None).still_frames is None
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +137,7 @@ def frozen() -> tuple:
 
 def _run(robot, seq, **options) -> tuple[list[SmootherFrame], list[SmootherFrame], int]:
     smoother = FixedLagSmoother(robot, lag=1.0, theta0=seq.thetas[0],
-                                settings=SmootherOptions(**options))
+                                settings=SmootherOptions(faults=FaultOptions(**options)))
     now, popped = [], []
     for f in range(seq.n_frames):
         now.append(smoother.update(seq.frame(f)))

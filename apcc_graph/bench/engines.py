@@ -9,7 +9,7 @@ batches agree to rounding; the smoothers can differ by a little more (about 1e-3
 rounding tips some of iSAM2's re-linearisation decisions. The largest difference is reported.
 
 The window's peer: the same smoother with gtsam's ``IncrementalFixedLagSmoother`` holding its
-window (``SmootherOptions(reproducible=False)``), which marginalises at every update and is
+window (``WindowOptions(reproducible=False)``), which marginalises at every update and is
 not reproducible (:mod:`apcc_graph.estimation.smoother.fixed_lag`).
 """
 
@@ -101,7 +101,7 @@ class WindowTimes:
 
 
 WINDOWS = {"reproducible": True, "gtsam": False}
-"""The window solvers compared: label -> ``SmootherOptions.reproducible``."""
+"""The window solvers compared: label -> ``SmootherOptions.window.reproducible``."""
 
 
 def window_times(sequence: Sequence, settings: SmootherOptions, progress: bool = False
@@ -109,8 +109,8 @@ def window_times(sequence: Sequence, settings: SmootherOptions, progress: bool =
     """The compiled smoother's update times on ``sequence`` with each window solver."""
     out = []
     for label, reproducible in WINDOWS.items():
-        times, thetas = _smoother_times(sequence, replace(settings, reproducible=reproducible),
-                                        progress, f"smoother ({label} window)")
+        solver = replace(settings, window=replace(settings.window, reproducible=reproducible))
+        times, thetas = _smoother_times(sequence, solver, progress, f"smoother ({label} window)")
         out.append(WindowTimes(label, float(np.median(times)),
                                float(np.percentile(times, 95)), thetas))
     return out

@@ -39,7 +39,7 @@ from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.model_fit import ModelFitWarning
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import FaultOptions, SmootherOptions, WindowOptions
 from apcc_graph.estimation.window import RestartWarning
 from apcc_graph.evaluation.tip_bound import tip_bound
 from apcc_graph.evaluation.tip_floor import (
@@ -57,8 +57,8 @@ from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.replay import measured_ends, motion_stretches, replay_motion
 
 RECORDINGS = ("slow_free_space", "impulse_2")
-PEERS = {"smoother-qr": SmootherOptions(factorization="QR"),
-         "smoother-gate": SmootherOptions(rotation_gate=0.02)}
+PEERS = {"smoother-qr": SmootherOptions(window=WindowOptions(factorization="QR")),
+         "smoother-gate": SmootherOptions(faults=FaultOptions(rotation_gate=0.02))}
 """Smoother variants the bench can run beside the default: ``smoother-qr`` factors its window
 by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad)."""
 METHODS = ("chain", "batch", "noise", "smoother", "smoother-noise", "noise@floor", *PEERS)
@@ -148,7 +148,7 @@ def _bounds(seq: Sequence, methods: tuple[str, ...]) -> dict[str, int | None]:
     out: dict[str, int | None] = {"bound": None}
     if any(m in SMOOTHERS for m in methods):
         dt = float(np.median(np.diff(seq.timestamps)))
-        out["lag bound"] = round(SmootherOptions().lag / dt)
+        out["lag bound"] = round(SmootherOptions().window.lag / dt)
     return out
 
 
@@ -314,7 +314,8 @@ def format_real_bench(rows: list[RealRow]) -> str:
     if any(r.method == "bound" for r in rows):
         lines.append("bound, lag bound: the Cramer-Rao bound of the tips on the model-exact "
                      f"motion (every {BOUND_STEP}th frame), of the whole stretch and of a "
-                     f"smoother's final estimates with a {SmootherOptions().lag:g} s lag; from the "
+                     "smoother's final estimates with a "
+                     f"{SmootherOptions().window.lag:g} s lag; from the "
                      "pixels and the start prior, without the motion prior the estimators add "
                      "(which can take them below it where the robot moves slowly)")
     if any(r.method in ("noise", "noise@floor") for r in rows):

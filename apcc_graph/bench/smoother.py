@@ -47,7 +47,7 @@ from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.chain import chain_estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
 from apcc_graph.evaluation.sequence_bound import LagBound, SequenceBound, lag_bound, sequence_bound
 from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
@@ -56,7 +56,7 @@ from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.simulator import Simulation, simulate
 
-QUICK = SmootherOptions(uncertainty=False)
+QUICK = SmootherOptions(window=WindowOptions(uncertainty=False))
 """The smoother without marginal sigmas: the benches that time it or only read its angles."""
 
 FPS = 30.0

@@ -34,7 +34,7 @@ from tqdm import tqdm
 
 from apcc_graph.bench.smoother import FPS, LAG, N_POINTS, NOISE_PX, ROBOT_FILE, resident_set_size
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
 from apcc_graph.evaluation.sequence_bound import lag_bound
 from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
@@ -101,7 +101,7 @@ def run_soak(frames: int = 100_000, seed: int = 1, bound: bool = True,
     robot = load_robot(ROBOT_FILE)
     stream = SimulatedStream(robot, NOISE_PX, OUTLIERS, seed, fps=FPS, n_points=N_POINTS)
     smoother = FixedLagSmoother(robot, lag=LAG, theta0=stream.thetas(0),
-                                settings=SmootherOptions(uncertainty=False))
+                                settings=SmootherOptions(window=WindowOptions(uncertainty=False)))
     step = max(frames // 20, 1)
     checkpoints = np.unique([*range(step, frames + 1, step), frames])
     wall, cpu = np.empty(frames), np.empty(frames)

@@ -31,7 +31,7 @@ from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.bench.smoother import LAG, THETA0_SIGMA, room_simulation
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions, TrackOptions, WindowOptions
 from apcc_graph.io.console import progress_bar
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.arrays import rms
@@ -82,7 +82,8 @@ def _run(sequence: Sequence, live_rows: int, progress: bool
     smoother = FixedLagSmoother(
         sequence.robot, lag=LAG, theta0=sequence.thetas[0],
         options=GraphOptions(theta0_sigma=THETA0_SIGMA),
-        settings=SmootherOptions(min_live_rows=live_rows, uncertainty=False))
+        settings=SmootherOptions(window=WindowOptions(uncertainty=False),
+                                 tracks=TrackOptions(min_live_rows=live_rows)))
     newest = np.empty_like(sequence.thetas)
     start = time.perf_counter()
     for f in progress_bar(range(sequence.n_frames), desc=f"min_live_rows {live_rows}",

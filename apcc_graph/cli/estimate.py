@@ -165,7 +165,11 @@ def _spatial_options(args: argparse.Namespace) -> dict:
 def _smoother_settings(args: argparse.Namespace) -> SmootherOptions | None:
     """The smoother's settings from the command line, checked (``None`` for another method,
     which must not have been given any)."""
-    from apcc_graph.estimation.smoother_options import SmootherOptions
+    from apcc_graph.estimation.smoother_options import (
+        FaultOptions,
+        SmootherOptions,
+        WindowOptions,
+    )
 
     if args.method == "smoother":
         if not (args.lag > 0.0 and math.isfinite(args.lag)):
@@ -173,8 +177,9 @@ def _smoother_settings(args: argparse.Namespace) -> SmootherOptions | None:
         gate = args.rotation_gate
         if gate is not None and not (gate > 0.0 and math.isfinite(gate)):
             raise UserError(f"--rotation-gate {gate!r}: expected a positive angle in radians")
-        return SmootherOptions(lag=args.lag, rotation_gate=gate,
-                               factorization=args.factorization or "CHOLESKY")
+        return SmootherOptions(
+            window=WindowOptions(lag=args.lag, factorization=args.factorization or "CHOLESKY"),
+            faults=FaultOptions(rotation_gate=gate))
     if args.lag is not None and args.lag != DEFAULT_LAG:
         raise UserError("--lag applies to --method smoother only")
     if args.rotation_gate is not None:

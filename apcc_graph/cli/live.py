@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> str:
     from apcc_graph.estimation.live import LiveEstimator
     from apcc_graph.estimation.live_guards import deferred_interrupts
     from apcc_graph.estimation.options import GraphOptions
-    from apcc_graph.estimation.smoother_options import SmootherOptions
+    from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
     from apcc_graph.io.console import StatusLine
     from apcc_graph.io.estimates import AppendedEstimate
     from apcc_graph.io.robot_file import load_robot
@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> str:
     out = check_output_folder(args.out, args.force, inputs=inputs)
     if args.force and out.is_dir():
         _empty(out)  # rows are appended as they come: the old run's files must not stay
-    estimator = LiveEstimator(robot, theta0, SmootherOptions(lag=args.lag),
+    estimator = LiveEstimator(robot, theta0, SmootherOptions(window=WindowOptions(lag=args.lag)),
                               realtime=not args.no_realtime,
                               graph=GraphOptions(model_sigma=args.model_sigma))
     files = AppendedEstimate(out, robot.n_segments, lambda th: robot.forward(th))

@@ -30,7 +30,7 @@ from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
 from apcc_graph.estimation.options import INITS, GraphOptions, Robustness
 from apcc_graph.estimation.result import Estimate
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
@@ -49,7 +49,7 @@ def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
         # The smoother has the exact model only.
         first = smoother_estimate(sequence, theta0=start[0], psi0=start[1],
                                   options=replace(options, model_sigma=None),
-                                  settings=SmootherOptions(uncertainty=False),
+                                  settings=SmootherOptions(window=WindowOptions(uncertainty=False)),
                                   robustness=robustness, progress=progress,
                                   spatial=bending.is_free)
         return bending.vector(first.thetas, first.psis), first.status

@@ -5,7 +5,7 @@ fixed-lag smoother has finished with?
 (:mod:`~apcc_graph.estimation.model_fit`). A live smoother never has the whole recording, so
 :class:`FitMonitor` keeps each incoming frame's observations until the smoother hands out that
 frame's final estimate (``pop_final``, ``finish``), and tests every block of
-``SmootherOptions.misfit_seconds`` of final frames as a short recording of its own: each
+``SmootherOptions.faults.misfit_seconds`` of final frames as a short recording of its own: each
 camera's observations the images alone accept, against the model's camera poses at the final
 estimates (tracks are cut at the block's edges). A failing block gets a
 :class:`~apcc_graph.estimation.model_fit.ModelFitWarning` naming its frames and times, once per

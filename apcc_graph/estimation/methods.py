@@ -210,8 +210,9 @@ def _run(sequence: Sequence, method: str, theta0: ArrayLike, psi0: ArrayLike | N
     from apcc_graph.estimation.smoother_runs import smoother_estimate
 
     # estimate() tests the whole recording afterwards: not block by block as well
+    faults = replace(settings.faults, misfit_seconds=None)
     return smoother_estimate(sequence, theta0, options=graph,
-                             settings=replace(settings, misfit_seconds=None),
+                             settings=replace(settings, faults=faults),
                              robustness=robustness, progress=progress, psi0=psi0,
                              spatial=spatial)
 

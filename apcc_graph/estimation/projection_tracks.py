@@ -9,7 +9,7 @@ long) all its observations enter one projection factor for good (:meth:`Projecti
 Outlier decisions: a piece seen for the first time in the live factor, and a piece being
 committed, have their point triangulated robustly at the current estimates and each observation
 is judged against it (truncated quadratic, ``Robustness.inlier_sigmas``); the observations of
-a new frame were judged by its initial guess. With ``SmootherOptions.rotation_gate`` the
+a new frame were judged by its initial guess. With ``SmootherOptions.faults.rotation_gate`` the
 model-free gate's weights (:mod:`apcc_graph.estimation.rotation_gate`) multiply those decisions,
 and a new piece waits for :data:`DECIDE_OPEN` rows the gate leaves open. A piece with fewer
 than two weighted rows is left out of its factor (:func:`~apcc_graph.estimation.robust.
@@ -91,7 +91,7 @@ class ProjectionTracks:
     def _new_live(self) -> LiveTracks:
         max_frames = self.options.max_track_frames or 10**9
         return LiveTracks(self.robot.camera_segments, max_frames, self.options.min_track_rows,
-                          stagger=self.settings.stagger_cuts)
+                          stagger=self.settings.tracks.stagger_cuts)
 
     def reset(self, keep: int | None = None) -> None:
         """Forget every live piece (after the smoother restarted); the observations of frame
@@ -139,8 +139,8 @@ class ProjectionTracks:
         self.count(len(obs), int(np.sum(factor.weights == 0.0)))
         if not factor.weights.any():
             return
-        if self.settings.relinearize:
-            factor.point_iterations = self.settings.point_iterations
+        if self.settings.window.relinearize:
+            factor.point_iterations = self.settings.tracks.point_iterations
             graph.add(factor.factor())
             return
         # Linearised once, here, at estimates the window has refined for as long as the piece
@@ -152,8 +152,8 @@ class ProjectionTracks:
                    landmarks: Landmarks, gates: Mapping[int, FloatArray] | None = None
                    ) -> tuple[list[FrameRows], list[tuple[int, NDArray[np.bool_]]]]:
         """The new frame's observations of landmarks and of live tracks whose points are known
-        from at least ``settings.min_live_rows`` observations (a vouched piece's point from two
-        close frames is too loose to check a new observation against), and per entry the camera
+        from at least ``settings.tracks.min_live_rows`` observations (a vouched piece's point from
+        two close frames is too loose to check a new observation against), and per entry the camera
         and the mask of those rows; rows with a gate weight of 0 in ``gates`` (camera -> per
         row) are left out."""
         out, masks = [], []
@@ -166,7 +166,7 @@ class ProjectionTracks:
             pieces = self.live.piece_ids(cam, ids)
             points = self.live.points(cam)
             known = np.array([p in points for p in pieces.tolist()], dtype=bool)
-            known &= (self.live.lengths(cam, pieces) >= self.settings.min_live_rows) & open_
+            known &= (self.live.lengths(cam, pieces) >= self.settings.tracks.min_live_rows) & open_
             if known.any():
                 pts = np.array([points[p] for p in pieces[known].tolist()])
                 out.append(FrameRows(cam, pts, xy[known], whiten[known]))
@@ -180,7 +180,7 @@ class ProjectionTracks:
         a robust triangulation. Returns (position in graph, camera, factor)."""
         out = []
         for cam in self.robot.camera_segments:
-            found = self.live.live_rows(cam, self.settings.min_live_rows)
+            found = self.live.live_rows(cam, self.settings.tracks.min_live_rows)
             if found is None:
                 continue
             obs, weights, index = found
@@ -203,7 +203,7 @@ class ProjectionTracks:
                 continue
             factor = ProjectionFactor(obs, chain, self.dim, weights)
             factor.points = np.array([points[int(p)] for p in obs.ids])
-            factor.point_iterations = self.settings.point_iterations
+            factor.point_iterations = self.settings.tracks.point_iterations
             out.append((graph.size(), cam, factor))
             graph.add(factor.factor())
         return out

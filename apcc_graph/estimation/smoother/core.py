@@ -70,7 +70,7 @@ class FixedLagSmoother:
 
     Args:
         robot: the robot model.
-        lag: window length (seconds); default ``settings.lag`` (1 s).
+        lag: window length (seconds); default ``settings.window.lag`` (1 s).
         options: the measurement model (:class:`~apcc_graph.estimation.options.GraphOptions`;
             with ``model_sigma``, model error as noise).
         theta0: ``(S,)`` starting configuration in radians (default straight), held by a prior
@@ -84,7 +84,7 @@ class FixedLagSmoother:
             only.
         robustness: the outlier threshold (:class:`~apcc_graph.estimation.options.Robustness`).
 
-    The settings' fields read back as attributes (``smoother.lag``).
+    The settings' records read back as attributes (``smoother.window.lag``).
 
     Example::
 
@@ -112,26 +112,29 @@ class FixedLagSmoother:
         self.start_contradicted = False  # the first frame's images contradicted theta0
         self.robot = robot
         self.options = o = GraphOptions() if options is None else options
-        self._window = Window(s.lag, b.width**2 * robot.n_segments,
+        self._window = Window(s.window.lag, b.width**2 * robot.n_segments,
                               lambda frame: present_frame(b, frame))
         self._model: WindowModel = window_model(robot, o, s, self._window, b,
                                                 self.inlier_sigmas)
-        self.gate = self._model.default_gate if s.rotation_gate is None else s.rotation_gate
-        groups = self._model.elimination if s.reproducible else None
-        self._solver = Solver(lambda: new_window(s.lag, s.relinearize_threshold,
-                                                 s.factorization, s.reproducible, groups))
-        self._recovery = Recovery(robot, o, b, self.inlier_sigmas, self.gate, s.uncertainty,
+        self.gate = (self._model.default_gate if s.faults.rotation_gate is None
+                     else s.faults.rotation_gate)
+        groups = self._model.elimination if s.window.reproducible else None
+        self._solver = Solver(lambda: new_window(s.window.lag, s.window.relinearize_threshold,
+                                                 s.window.factorization, s.window.reproducible,
+                                                 groups))
+        self._recovery = Recovery(robot, o, b, self.inlier_sigmas, self.gate, s.window.uncertainty,
                                   self._window, self._solver, self._model)
         self._previous: tuple[Rows, FloatArray | None] = ({}, None)  # last frame's rows, base
         self._rng = np.random.default_rng(0)
         self._first: FirstFrames | None = FirstFrames(  # for the start search, if need be
             Reacquisition(robot, o, self.inlier_sigmas, b, self.theta0, o.theta0_sigma),
             self.spatial, robustness)
-        self._still = StillFrames(math.inf if s.still_frames is None else s.still_frames,
-                                  s.still_chi2)
+        self._still = StillFrames(
+            math.inf if s.faults.still_frames is None else s.faults.still_frames,
+            s.faults.still_chi2)
         alarm = robustness.misfit_alarm
-        self._monitor = (None if alarm is None or s.misfit_seconds is None else FitMonitor(
-            robot, b, o, self.inlier_sigmas, alarm, s.misfit_seconds))
+        self._monitor = (None if alarm is None or s.faults.misfit_seconds is None else FitMonitor(
+            robot, b, o, self.inlier_sigmas, alarm, s.faults.misfit_seconds))
 
     def __getattr__(self, name: str) -> Any:
         settings = self.__dict__.get("settings")
@@ -203,7 +206,7 @@ class FixedLagSmoother:
         rows, verdicts = self._faults(f, t, rows, observations, still.count - 1,
                                       still.last_time or 0.0)
         previous, window.last_time = window.last_time, t
-        window.lag = self._recovery.lag(t, self.settings.lag)
+        window.lag = self._recovery.lag(t, self.settings.window.lag)
         self._solver.set_lag(window.lag)
         # 3. make room
         add = Additions()
@@ -219,7 +222,8 @@ class FixedLagSmoother:
         self._model.observe(add, f, t, rows, marks, weights, verdicts, accepted)
         self._previous = (rows, base)
         frame_priors(add.graph, f, 0.0 if previous is None else t - previous, thetas,
-                     self.theta0, window, self.bending, self.options, self.settings.loose_sigma)
+                     self.theta0, window, self.bending, self.options,
+                     self.settings.window.loose_sigma)
         # 7. solve
         if self._solver.update(add, self._model.replaceable(add.graph)):
             read_estimate(window, self._model, self._solver.estimate())
@@ -254,7 +258,7 @@ class FixedLagSmoother:
         leaving = sorted(window.leaving(t))
         first_kept = max(leaving) + 1 if leaving else min(window.stamps, default=f)
         self._model.make_room(add, f, t, rows, leaving, first_kept,
-                              f % self.settings.commit_every == 0)
+                              f % self.settings.tracks.commit_every == 0)
         first = self._first if 0 in leaving else None
         if first is not None and window.status[0][0] == "initial":  # replaced next
             self._first = None
@@ -285,7 +289,7 @@ class FixedLagSmoother:
             counts[cam] = counts.get(cam, 0) + int(mask.sum())
         accepted: dict[int, NDArray[np.int64]] = {}
         before, before_base = self._previous
-        if any(counts.get(cam, 0) < self.settings.front_end_rows for cam in rows):
+        if any(counts.get(cam, 0) < self.settings.tracks.front_end_rows for cam in rows):
             prediction, accepted = front_end_guess(
                 previous, prediction, self.robot, bending, before_base, base, before, rows,
                 self.options.threshold_px, self._rng)

@@ -57,9 +57,10 @@ class ExactTracks:
         self.tracks = ProjectionTracks(robot, options, settings, window, bending, inlier_sigmas)
         self.landmarks = Landmarks(robot, self.tracks.chain,
                                    lambda g: (window.thetas[g], window.times[g]),
-                                   options.threshold_px, inlier_sigmas, settings.lag,
-                                   settings.max_landmarks, settings.landmark_sigma,
-                                   settings.pose_sigma, self.tracks.dim)
+                                   options.threshold_px, inlier_sigmas, settings.window.lag,
+                                   settings.landmarks.max_per_camera,
+                                   settings.landmarks.prior_sigma,
+                                   settings.landmarks.pose_sigma, self.tracks.dim)
         self._full_window: int | None = None  # frames in a full window, once one left
         self._live: list[LiveFactor] = []
 
@@ -91,7 +92,7 @@ class ExactTracks:
         seen = {c: ids for c, (ids, _, _) in rows.items()}
         self.landmarks.forget(seen, t)
         tracks = self.tracks
-        if self.settings.landmarks:
+        if self.settings.landmarks.enabled:
             promoted = tracks.live.take_continuing(seen, first_kept, self.landmarks.room())
             for cam, (obs, ids) in promoted.items():
                 first, last = int(obs.frames.min()), int(obs.frames.max())

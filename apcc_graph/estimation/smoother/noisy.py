@@ -68,7 +68,8 @@ class NoisyTracks:
         self.bending = bending
         self.n_segments = robot.n_segments
         self.points = PosePoints({c: robot.cameras[c].tip_T_cam  # type: ignore[union-attr]
-                                  for c in robot.camera_segments}, settings.lag, inlier_sigmas)
+                                  for c in robot.camera_segments}, settings.window.lag,
+                                 inlier_sigmas)
         self._tips: dict[int, FloatArray] = {}  # frame -> (S, 4, 4), frames in the window
         self._models: dict[int, FloatArray] = {}  # frame -> the model's tips at its estimate
         self._bases: dict[int, FloatArray] = {}
