@@ -290,7 +290,7 @@ class SmootherOptions:
         if flat:
             raise TypeError(f"SmootherOptions({', '.join(f'{k}=...' for k in flat)}): the "
                             f"options are grouped by concern: SmootherOptions({_nested(flat)}) "
-                            f"(SmootherOptions.of(...) still converts the flat names, for one "
+                            "(SmootherOptions.of(...) still converts the flat names, for one "
                             "release)")
         given = {"window": window, "tracks": tracks, "landmarks": landmarks, "faults": faults}
         for name, value in given.items():
