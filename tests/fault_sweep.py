@@ -4,7 +4,8 @@ truth: ``python tests/fault_sweep.py blind 7 11 12 13``.
 The three-segment robot of the benchmarks in the room scene (4000 points), 240 frames at
 30 fps, 1 px, 10% outliers; the fault at frame 80: ``blind`` (every camera blind for 1 s,
 tracks back under new ids), ``blind_ids`` (the same, the tracks' old ids kept), ``pause``
-(1.5 s of frames dropped, ids kept), ``nocam2`` (camera 2 never sees anything) or ``none``.
+(1.5 s of frames dropped, ids kept), ``pause_new`` (the same, tracks back
+under new ids), ``nocam2`` (camera 2 never sees anything) or ``none``.
 Prints per seed the RMS error per segment over every frame and over the frames from 2 s after
 the tracks return, the worst error after their return, and the warnings (degrees). For the
 sweep over every fault and both measurement models see ``apcc-graph bench reliability``.
@@ -36,7 +37,9 @@ def run(kind: str, seed: int, method: str, model_sigma: tuple[float, float] | No
     back = AT + 30
     if kind.startswith("blind"):
         sim = faults.blind(sim, [0, 1, 2], AT, back, keep_ids=kind.endswith("ids"))
-    elif kind == "pause":
+    elif kind.startswith("pause"):
+        if kind == "pause_new":  # every track seen again comes back under a new id
+            sim = faults.blind(sim, list(sim.sequence.tracks), AT, AT + 45)
         sim, back = faults.paused(sim, AT, AT + 45), AT
     elif kind == "nocam2":
         sim = faults.without_camera(sim, 1)
@@ -57,7 +60,8 @@ def run(kind: str, seed: int, method: str, model_sigma: tuple[float, float] | No
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("fault", choices=["none", "blind", "blind_ids", "pause", "nocam2"])
+    parser.add_argument("fault", choices=["none", "blind", "blind_ids", "pause", "pause_new",
+                                          "nocam2"])
     parser.add_argument("seeds", type=int, nargs="+")
     parser.add_argument("--method", default="smoother", choices=["smoother", "batch"])
     parser.add_argument("--model-sigma", default=None, metavar="MM,DEG",

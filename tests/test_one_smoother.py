@@ -114,6 +114,27 @@ def test_the_detectors_are_pure_functions_of_what_they_see() -> None:
     assert lost is not None and lost.camera == 0 and lost.since == 0
 
 
+def test_rounds_go_on_while_the_batch_is_unsure() -> None:
+    """After a gap the frames are re-acquired over one lag, then over the second round's span,
+    then over twice the last span while the batch's newest sigma exceeds SURE, up to
+    LONGEST; a one-round plan (a lost camera, a contradicted start) stops after one."""
+    unsure, sure = 2.0 * gaps.SURE, 0.5 * gaps.SURE
+    assert gaps.next_round(None, None, unsure, 1.0) is None  # a one-round plan
+    assert gaps.next_round(None, 2.0, sure, 1.0) == 2.0  # the second round, sure or not
+    assert gaps.next_round(2.0, None, sure, 1.0) is None
+    assert gaps.next_round(2.0, None, unsure, 1.0) == 4.0
+    assert gaps.next_round(2.0, None, math.nan, 1.0) == 4.0  # no sigma: not sure
+    assert gaps.next_round(None, 2.0, unsure, 2.0) == 4.0  # a 2 s lag: its first was 2 s
+    assert gaps.next_round(None, 2.0, sure, 3.0) is None
+    assert gaps.next_round(0.75 * gaps.LONGEST, None, unsure, 1.0) == gaps.LONGEST
+    assert gaps.next_round(gaps.LONGEST, None, unsure, 1.0) is None
+    spans, span, then = [], None, 2.0  # a batch that never becomes sure
+    while (nxt := gaps.next_round(span, then, unsure, 1.0)) is not None:
+        spans.append(nxt)
+        span, then = nxt, None
+    assert spans == [2.0, 4.0, gaps.LONGEST]
+
+
 @pytest.fixture(scope="module")
 def blackout_with_model_noise() -> tuple[object, object, list[warnings.WarningMessage]]:
     """Every camera blind for half a second, tracks back under new ids, the model-noise

@@ -172,7 +172,9 @@ class Reacquisition:
         blind: after a blackout, the blind frames' estimates from the frames before it
             (:class:`Forward`), for :func:`bridged` once the batch has solved.
         then: after this re-acquisition, keep the frames until they span this many seconds
-            and re-acquire them once more (:meth:`longer`); ``None``: once.
+            and re-acquire them once more (:meth:`longer`), and then in further rounds while
+            the batch is unsure (:func:`~apcc_graph.estimation.smoother.gaps.next_round`);
+            ``None`` and no ``span``: once.
         span: keep the frames until they span this many seconds rather than the lag.
         camera: one camera's tracks came back (its segment lost, the others not): only that
             segment is re-acquired (the search's answer replaces it alone); ``None``: every

@@ -338,6 +338,9 @@ class FixedLagSmoother:
         order (frames still in the window: their current smoothed estimate), except frames
         already taken by :meth:`pop_final`. The smoother can keep receiving frames afterwards
         (tracks then start new pieces)."""
+        replayed = self._recovery.settle()
+        if replayed is not None:
+            self._previous = replayed
         add = Additions()
         self._model.finish(add, self._window.last_time or 0.0)
         if self._window.stamps and (add.graph.size() or self._model.final_steps):

@@ -180,6 +180,17 @@ class Recovery:
             self.reacquiring.add(f, t, observations)  # every frame, the second round's too
         return previous
 
+    def settle(self) -> Previous | None:
+        """The recording ends (or pauses for a :meth:`~apcc_graph.estimation.smoother.core.
+        FixedLagSmoother.finish`): the re-acquisition under way, if it holds two frames or
+        more, is carried out now over the frames it kept rather than never (returning the
+        window's new previous frame, if it restarted); a further round it plans stays pending
+        for the frames that may still come."""
+        kept = self.reacquiring
+        if kept is None or len(kept.slots) < 2:
+            return None
+        return self.reacquire(kept)
+
     # ---------------------------------------------------------------------- restarts
     def restart(self, f: int, t: float, thetas: FloatArray,
                 prior: gtsam.noiseModel.Base | None = None, status: str | None = "recovered",
@@ -241,8 +252,10 @@ class Recovery:
             window.revise(h, *bridged(forward, found.x[0], found.blocks[0], kept.first_time,
                                       motion, self.bending.width))
         previous = self._restart_holding(kept, found)
-        if kept.then is not None and kept.then > window.lag:
-            self.reacquiring = kept.longer(kept.then)
+        span = gaps.next_round(kept.span, kept.then, float(np.max(found.sigmas[-1])),
+                               window.lag)
+        if span is not None:
+            self.reacquiring = kept.longer(span)
         return previous
 
     def _segment_start(self, kept: Reacquisition) -> Reacquisition:
