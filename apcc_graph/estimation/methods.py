@@ -122,8 +122,7 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         psi0 = start.psi0
     if theta0_sigma is not None:
         graph = replace(graph, theta0_sigma=float(theta0_sigma))
-    result = _run(sequence, method, theta0, psi0, spatial, graph, robustness, settings,
-                  progress)
+    result = _run(sequence, theta0, psi0, spatial, graph, robustness, settings, progress)
     if method != "chain" and robustness.misfit_alarm is not None:
         result = replace(result, model_fit=_model_fit(sequence, result, graph, robustness,
                                                       theta0, psi0))
@@ -181,10 +180,10 @@ def _records(method: str, graph: GraphOptions | None, robustness: Robustness | N
     return (graph or GraphOptions(), robustness or Robustness(), settings or wanted())
 
 
-def _run(sequence: Sequence, method: str, theta0: ArrayLike, psi0: ArrayLike | None,
-         spatial: bool, graph: GraphOptions, robustness: Robustness, settings: MethodOptions,
+def _run(sequence: Sequence, theta0: ArrayLike, psi0: ArrayLike | None, spatial: bool,
+         graph: GraphOptions, robustness: Robustness, settings: MethodOptions,
          progress: bool) -> Estimate:
-    """The estimator ``method`` from ``theta0`` (and ``psi0``)."""
+    """The estimator whose options ``settings`` are, from ``theta0`` (and ``psi0``)."""
     if isinstance(settings, ChainOptions):
         from apcc_graph.estimation.chain import chain_estimate
 
