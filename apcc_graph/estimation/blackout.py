@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -242,14 +242,7 @@ class Reacquisition:
 
     def sequence(self) -> Sequence:
         """The kept frames as a recording (their frame ``k`` is the ``k``-th kept)."""
-        tracks = {}
-        for cam in self.robot.camera_segments:
-            rows = [(k, *obs.tracks[cam]) for k, obs in enumerate(self._frames)
-                    if cam in obs.tracks and len(obs.tracks[cam][0])]
-            if rows:
-                tracks[cam] = Tracks(np.concatenate([np.full(len(ids), k) for k, ids, _ in rows]),
-                                     np.concatenate([ids for _, ids, _ in rows]),
-                                     np.concatenate([uv for _, _, uv in rows]))
+        tracks = stacked_tracks(self.robot.camera_segments, [obs.tracks for obs in self._frames])
         bases = [obs.world_T_base for obs in self._frames]
         return Sequence(self.robot, self._times, tracks,
                         None if any(b is None for b in bases) else np.array(bases))
@@ -307,3 +300,19 @@ class Reacquisition:
             return self.theta0, self.sigma, None
         spreads = np.asarray(found.sigma0, dtype=float)
         return found.x0.copy(), float(np.nanmax(spreads, initial=MIN_SIGMA)), spreads
+
+
+def stacked_tracks(cameras: Iterable[int],
+                   frames: list[Mapping[int, tuple[NDArray[np.int64], FloatArray]]]
+                   ) -> dict[int, Tracks]:
+    """Each camera's tracks over ``frames`` (each a mapping camera -> ``(ids, uv)``), the
+    ``k``-th frame as frame ``k``; a camera seen in none of them has no entry."""
+    tracks = {}
+    for cam in cameras:
+        rows = [(k, *seen[cam]) for k, seen in enumerate(frames)
+                if cam in seen and len(seen[cam][0])]
+        if rows:
+            tracks[cam] = Tracks(np.concatenate([np.full(len(ids), k) for k, ids, _ in rows]),
+                                 np.concatenate([ids for _, ids, _ in rows]),
+                                 np.concatenate([uv for _, _, uv in rows]))
+    return tracks

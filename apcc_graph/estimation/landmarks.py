@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
@@ -39,19 +40,13 @@ from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
 
+if TYPE_CHECKING:  # the smoother's package imports this module
+    from apcc_graph.estimation.smoother.solver import Additions
+
 ChainLookup = Callable[[int, int, int], CameraChain]
 """``(camera, first, last) -> the camera's chain over frames first .. last``."""
 FrameLookup = Callable[[int], tuple[FloatArray, float]]
 """``frame -> (its current angles, its time)``, for frames in the window."""
-
-
-class Additions:
-    """What one update adds to the smoother: factors, new values and their timestamps."""
-
-    def __init__(self) -> None:
-        self.graph = gtsam.NonlinearFactorGraph()
-        self.values = gtsam.Values()
-        self.stamps: dict[int, float] = {}
 
 
 class Landmarks:

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from apcc_graph.estimation.blackout import stacked_tracks
 from apcc_graph.estimation.live_guards import LimitGuard, LiveWarning, RateMonitor
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
@@ -65,7 +66,7 @@ from apcc_graph.frontend.recordings import CameraStream, match_frames
 from apcc_graph.frontend.tracking import KLTTracker
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
-from apcc_graph.model.sequence import FrameObservations, Tracks
+from apcc_graph.model.sequence import FrameObservations
 from apcc_graph.model.sequence import Sequence as Recording
 
 MAX_GAP = 0.2
@@ -328,15 +329,9 @@ class LiveEstimator:
 
     def _recording(self) -> Recording:
         """The kept frames as a recording (frame k: the k-th kept)."""
-        tracks = {}
-        for cam in self.robot.camera_segments:
-            rows = [(k, *kept[2][cam]) for k, kept in enumerate(self._kept)
-                    if cam in kept[2] and len(kept[2][cam][0])]
-            if rows:
-                tracks[cam] = Tracks(np.concatenate([np.full(len(ids), k) for k, ids, _ in rows]),
-                                     np.concatenate([ids for _, ids, _ in rows]),
-                                     np.concatenate([uv for _, _, uv in rows]))
-        return Recording(self.robot, [kept[1] for kept in self._kept], tracks)
+        return Recording(self.robot, [kept[1] for kept in self._kept],
+                         stacked_tracks(self.robot.camera_segments,
+                                        [kept[2] for kept in self._kept]))
 
     def _waiting(self, pending: Frame | None, start: tuple[float, float]) -> bool:
         """Whether the next frame has already arrived."""
