@@ -1,25 +1,16 @@
 """A fixed-lag smoother over gtsam's iSAM2 that marginalises the same way on every run.
 
-gtsam 4.3's ``IncrementalFixedLagSmoother`` does three things per update: it constrains the
-ordering so that the variables older than the lag are eliminated first, marks extra keys for
-re-elimination so that those variables end up in leaf cliques, and marginalises them
-(``ISAM2.marginalizeLeaves``). To find the extra keys it walks the Bayes tree from a hash set of
-clique pointers (``BayesTreeMarginalizationHelper``), and the order of that walk changes which
-cliques it marks. So what is re-eliminated, and with it the order of the floating-point sums,
-depends on where the cliques lie in memory: two runs on the same data drift apart by about
-1e-8 rad once landmarks make cliques that mix leaving and kept variables, and after a blackout
-that is enough to take another branch.
-
-:class:`FixedLagISAM2` does the same three things but marks *every* variable of the window for
-re-elimination whenever one leaves. That set depends on nothing but the window's keys, and it
-always suffices (the whole tree is re-eliminated under the ordering constraint, so the leaving
-variables become leaves). That costs iSAM2 a batch step (every factor of the window
-linearised anew and eliminated), so it marginalises in blocks: only once the oldest variable is
-``slack`` seconds past the lag, and then every variable past it. Between blocks the window holds
-up to ``lag + slack`` seconds (more information, not less, than a fixed lag). On the shipped
-sample, marginalising every frame this way made an update 33% slower than gtsam's class
-(median 90 against 67 ms); with the default slack of a quarter of the lag, see
-docs/estimation.md ("The fixed-lag smoother").
+gtsam 4.3's ``IncrementalFixedLagSmoother`` finds the cliques to re-eliminate before a
+marginalisation by walking a hash set of clique pointers, so what it re-eliminates, and with it
+the order of the floating-point sums, depends on where the cliques lie in memory: once landmarks
+are in the window, two runs on the same data drift apart. :class:`FixedLagISAM2` does the same
+three things (an ordering constraint that eliminates the leaving variables first, extra keys
+re-eliminated so that they end up in leaf cliques, ``ISAM2.marginalizeLeaves``) but marks
+*every* variable of the window for re-elimination whenever one leaves: a set that depends on the
+window's keys alone, and always enough. That costs iSAM2 a batch step, so it marginalises in
+blocks: only once the oldest variable is ``slack`` seconds past the lag, and then every variable
+past it; between blocks the window holds up to ``lag + slack`` seconds. The drift and the cost
+of each schedule, measured: docs/estimation.md, "The fixed-lag smoother".
 
 It answers the calls the smoother makes of gtsam's class (``update``, ``calculateEstimate``,
 ``marginalCovariance``, ``getISAM2Result``, ``getFactors``), with the new variables'
