@@ -25,6 +25,9 @@ from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.sequence import Sequence
 
+MAX_FINAL_ROUNDS = 4
+"""Most rounds of the truncated quadratic decided by the residuals at the last solution."""
+
 
 @dataclass(frozen=True)
 class BatchReport:
@@ -125,8 +128,7 @@ class ProjectionSolution:
 
 def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray | None,
                      options: GraphOptions, robustness: Robustness | None = None,
-                     max_iterations: int = 30, max_final_rounds: int = 4,
-                     marginals: bool = True, progress: bool = False,
+                     max_iterations: int = 30, marginals: bool = True, progress: bool = False,
                      calibration_sigmas: tuple[float, float] | None = None,
                      bending: Bending | None = None,
                      mount_sigmas: tuple[float, float] | None = None,
@@ -149,7 +151,6 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
             :class:`~apcc_graph.estimation.options.Robustness`: fitted to the residuals at
             ``initial`` by :func:`~apcc_graph.estimation.robust.gnc_start`).
         max_iterations: Levenberg-Marquardt iterations per stage.
-        max_final_rounds: most rounds of the truncated quadratic decided by residuals (>= 1).
         marginals: compute marginal sigmas (otherwise NaN).
         progress: show a progress bar over the stages.
         calibration_sigmas, mount_sigmas: self-calibration (the exact model only): estimate
@@ -161,10 +162,8 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
             ``options.theta0_sigma`` on each).
 
     Raises:
-        ValueError: self-calibration with ``options.model_sigma``; ``max_final_rounds < 1``.
+        ValueError: self-calibration with ``options.model_sigma``.
     """
-    if max_final_rounds < 1:
-        raise ValueError(f"max_final_rounds = {max_final_rounds}: expected at least 1")
     robustness = Robustness() if robustness is None else robustness
     bending = Bending.fixed(sequence.robot.segments) if bending is None else bending
     model = measurement_model(sequence.robot, options, bending, calibration_sigmas, mount_sigmas)
@@ -172,10 +171,10 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     priors = prior_factors(frames, sequence.timestamps, theta0, bending, options,
                            start_sigmas=start_sigmas)
     # One bar over every long stage: triangulation, the outlier rounds, the marginals.
-    bar = progress_bar(total=max_final_rounds + 2, desc="batch", progress=progress, leave=False)
+    bar = progress_bar(total=MAX_FINAL_ROUNDS + 2, desc="batch", progress=progress, leave=False)
     bar.set_postfix_str("triangulating the tracks")
     x = np.array(initial, dtype=float)
-    stages = model.start(sequence, x, robustness) + [math.inf] * max_final_rounds
+    stages = model.start(sequence, x, robustness) + [math.inf] * MAX_FINAL_ROUNDS
     bar.total = len(stages) + 2
     bar.update()
     iterations = 0
