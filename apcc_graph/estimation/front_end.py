@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from apcc_graph.estimation.rotation_gate import bearings
 from apcc_graph.frontend.ransac import RansacInfo, one_point_ransac
 from apcc_graph.frontend.spatial_ransac import two_point_ransac
 from apcc_graph.model.arrays import FloatArray
@@ -56,14 +57,8 @@ def frame_pairs(previous: Rows, rows: Rows) -> list[FramePairs]:
         common, now, then = np.intersect1d(ids, before[0], return_indices=True)
         if len(common) == 0:
             continue
-        out.append(FramePairs(cam, _unit(before[1][then]), _unit(xy[now]), now))
+        out.append(FramePairs(cam, bearings(before[1][then]), bearings(xy[now]), now))
     return out
-
-
-def _unit(xy: FloatArray) -> FloatArray:
-    """Unit bearings of normalised image points."""
-    b = np.column_stack([xy, np.ones(len(xy))])
-    return b / np.linalg.norm(b, axis=1, keepdims=True)
 
 
 def segment_bases(x: FloatArray, bending: Bending, world_T_base: FloatArray | None
