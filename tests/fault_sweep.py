@@ -4,7 +4,7 @@ truth: ``python tests/fault_sweep.py blind 7 11 12 13``.
 The three-segment robot of the benchmarks in the room scene (4000 points), 240 frames at
 30 fps, 1 px, 10% outliers; the fault at frame 80: ``blind`` (every camera blind for 1 s,
 tracks back under new ids), ``blind_ids`` (the same, the tracks' old ids kept), ``pause``
-(1.5 s of frames dropped, ids kept), ``pause_new`` (the same, tracks back
+(1.5 s of frames dropped, ids kept), ``cam3`` (camera 3 blind for 3 s), ``pause_new`` (the same, tracks back
 under new ids), ``nocam2`` (camera 2 never sees anything) or ``none``.
 Prints per seed the RMS error per segment over every frame and over the frames from 2 s after
 the tracks return, the worst error after their return, and the warnings (degrees). For the
@@ -41,6 +41,8 @@ def run(kind: str, seed: int, method: str, model_sigma: tuple[float, float] | No
         if kind == "pause_new":  # every track seen again comes back under a new id
             sim = faults.blind(sim, list(sim.sequence.tracks), AT, AT + 45)
         sim, back = faults.paused(sim, AT, AT + 45), AT
+    elif kind == "cam3":  # the last camera blind for 3 s
+        sim, back = faults.blind(sim, [2], AT, AT + 90), AT + 90
     elif kind == "nocam2":
         sim = faults.without_camera(sim, 1)
     seq = sim.sequence
@@ -61,7 +63,7 @@ def run(kind: str, seed: int, method: str, model_sigma: tuple[float, float] | No
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("fault", choices=["none", "blind", "blind_ids", "pause", "pause_new",
-                                          "nocam2"])
+                                          "cam3", "nocam2"])
     parser.add_argument("seeds", type=int, nargs="+")
     parser.add_argument("--method", default="smoother", choices=["smoother", "batch"])
     parser.add_argument("--model-sigma", default=None, metavar="MM,DEG",
