@@ -8,21 +8,24 @@ only as far as the cameras' parallax and the kinematic chain tell them, and the 
 Gauss-Newton steps from a start that far off end in another minimum (60 degrees off on the
 reliability bench, where the robot moved 60 degrees in the dark).
 
-So the smoother says so (:class:`BlackoutWarning`, with the sigma the motion prior
-had left) and *re-acquires* the angles (:class:`Reacquisition`): it keeps the observations of
-the frames after the blackout until the first of them is about to leave the window, then
-solves those frames in one batch (:func:`~apcc_graph.estimation.batch_solve.projection_solve`,
-started by the paper's chain from its estimate, with a start prior of the motion prior's
-sigma). Graduated non-convexity and Levenberg-Marquardt over a second of new tracks find the
-basin that Gauss-Newton steps frame by frame miss: on the 210-frame test recording, batches over
-20 and 40 frames from 60 degrees off came within 12 and 3 degrees of segment 1 (honest sigmas
-of 6 and 1.3), segments 2 and 3 within 2 and 0.4. The batch's angles become those frames' final
-estimates (status ``"reacquired"``; :class:`Reacquired` holds what it found), and the window
-restarts holding them, under the batch's own priors, their observations replayed into its
-tracks (:mod:`apcc_graph.estimation.smoother.restarts`). The blind frames themselves are kept
-out of the new tracks' first, wrong minimum (the window restarts at the last of them when the
-tracks come back) and, once the batch has solved, :func:`bridged` between the frames before
-the blackout and the first re-acquired frame.
+So the smoother says so (:class:`BlackoutWarning`, with the sigma the motion prior had left)
+and *re-acquires* the angles (:class:`Reacquisition`): it keeps the observations of the frames
+after the blackout until the first of them is about to leave the window, then solves those
+frames in one batch (:func:`~apcc_graph.estimation.batch_solve.projection_solve`, from the
+unknown-start search's answer over them when it determines one, else from the smoother's
+estimate with a start prior of the motion prior's sigma; the paper's chain carries that start
+through the frames). Graduated non-convexity and Levenberg-Marquardt over a second of new
+tracks find the basin that Gauss-Newton steps frame by frame miss: on the 210-frame test
+recording, batches over 20 and 40 frames from 60 degrees off came within 12 and 3 degrees of
+segment 1 (honest sigmas of 6 and 1.3), segments 2 and 3 within 2 and 0.4. The batch's angles
+become those frames' final estimates (status ``"reacquired"``; :class:`Reacquired` holds what
+it found), and the window restarts holding them, under the batch's own priors, their
+observations replayed into its tracks (:mod:`apcc_graph.estimation.smoother.restarts`). The
+blind frames themselves are kept out of the new tracks' first, wrong minimum (the window
+restarts at the last of them when the tracks come back) and, once the batch has solved,
+:func:`bridged` between the frames before the blackout and the first re-acquired frame. Further
+rounds over ever more of the frames follow while the batch is unsure
+(:func:`~apcc_graph.estimation.smoother.gaps.next_round`).
 """
 
 from __future__ import annotations
