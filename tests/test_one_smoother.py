@@ -18,6 +18,7 @@ from apcc_graph.estimation.live import LiveEstimator
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother, gaps
+from apcc_graph.estimation.start_check import StartWarning
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.simulation import faults
 from apcc_graph.simulation.simulator import simulate
@@ -176,6 +177,54 @@ def test_the_model_noise_smoother_keeps_a_right_start_before_a_blackout(
     seq, est, _ = blackout_with_model_noise
     err = np.degrees(np.abs(est.thetas - seq.thetas))
     assert np.max(err[:25]) < 1.0, np.max(err[:25])
+
+
+@pytest.fixture(scope="module")
+def pause_with_model_noise() -> tuple[object, object]:
+    """Half a second of frames never received while the robot moved on, every track after it
+    new, the model-noise smoother."""
+    sim = _simulation(75, 5)
+    seq = faults.paused(faults.blind(sim, [0, 1, 2], 30, 45), 30, 45).sequence
+    with pytest.warns(BlackoutWarning, match=r"frame 30 .* paused for 0\.5\d s"):
+        est = estimate(seq, method="smoother", theta0=seq.thetas[0], noise_px=1.0,
+                       graph=NOISE)
+    return seq, est
+
+
+def test_the_model_noise_smoother_reacquires_after_a_pause(pause_with_model_noise: tuple
+                                                           ) -> None:
+    """Said, and every frame after it re-acquired by the model-noise batch (the last round
+    when the recording ends)."""
+    seq, est = pause_with_model_noise
+    assert (est.status[30:] == "reacquired").all()
+    assert np.all(np.isfinite(est.thetas)) and np.all(np.isfinite(est.sigmas))
+
+
+@pytest.mark.xfail(strict=True, reason="known fault of model error as independent per-frame "
+                   "noise: its batch does not converge along the weak direction of the "
+                   "absolute bends and reports sigmas of its curvature there; after this pause "
+                   "9.1 deg off with a sigma of 0.24 (|e|/sigma 39), where the exact smoother is "
+                   "4.3 deg off with a sigma of 7.2; undisturbed, over the same 75 frames, its "
+                   "batch is 1.6-2.3 deg RMS with (e/s)^2 23-63")
+def test_the_model_noise_smoother_is_honest_after_a_pause(pause_with_model_noise: tuple
+                                                          ) -> None:
+    seq, est = pause_with_model_noise
+    z = np.abs(est.thetas[30:] - seq.thetas[30:]) / est.sigmas[30:]
+    assert np.max(z) < 5.0, np.max(z, axis=0)
+
+
+@pytest.mark.xfail(strict=True, reason="known fault: gtsam fails on the model-noise window at "
+                   "frame 13 (an indeterminate system near a camera-3 point), the window "
+                   "restarts from one frame, frame 0 leaves unchecked and the wrong start stays")
+def test_the_model_noise_smoother_replaces_a_contradicted_start() -> None:
+    """A start 5 deg off on segment 1 under a 0.1 deg prior: the start check says so and the
+    search over the first second replaces it, as for the exact model."""
+    seq = _simulation(60, 6).sequence
+    wrong = seq.thetas[0] + np.radians([5.0, 0.0, 0.0])
+    with pytest.warns(StartWarning, match="replaced by the unknown-start search's answer"):
+        est = estimate(seq, method="smoother", theta0=wrong, noise_px=1.0, graph=NOISE)
+    err = np.degrees(np.abs(est.thetas[:30, 0] - seq.thetas[:30, 0]))
+    assert np.max(err) < 2.5, err
 
 
 def test_the_model_noise_smoother_runs_live() -> None:
