@@ -108,6 +108,22 @@ def test_dropped_frames_keep_everything_else() -> None:
         dropped_frames(sample, 0, 10)
 
 
+def recorded_rounds(monkeypatch: pytest.MonkeyPatch) -> list[list[int]]:
+    """The graph frames of every re-acquisition the smoother carries out from now on (a list
+    that fills as it runs)."""
+    from apcc_graph.estimation.smoother.restarts import Recovery
+
+    rounds: list[list[int]] = []
+    carried_out = Recovery.reacquire
+
+    def recorded(self: Recovery, kept: object) -> object:
+        rounds.append(list(kept.slots))  # type: ignore[attr-defined]
+        return carried_out(self, kept)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Recovery, "reacquire", recorded)
+    return rounds
+
+
 @pytest.mark.parametrize("lag", [1.0, 2.0])
 def test_a_pause_while_the_robot_moves_is_said_and_reacquired(
         lag: float, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -126,21 +142,12 @@ def test_a_pause_while_the_robot_moves_is_said_and_reacquired(
     frame interval, and the robot ended 80 degrees off; a gap of half a second with no track
     coming back now re-acquires whatever the lag (0.80 / 0.17 / 0.06 deg after the pause).
 
-    Both rounds hold every frame after the pause: the second used to miss the frame at which
+    Every round holds every frame after the pause: the second used to miss the frame at which
     the first ran."""
     from apcc_graph.bench.reliability import fault_cases
     from apcc_graph.estimation.blackout import BlackoutWarning
-    from apcc_graph.estimation.smoother.restarts import Recovery
 
-    rounds: list[list[int]] = []
-    first_round = Recovery.reacquire
-
-    def recorded(self: Recovery, kept: object) -> object:
-        rounds.append(list(kept.slots))  # type: ignore[attr-defined]
-        return first_round(self, kept)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(Recovery, "reacquire", recorded)
-
+    rounds = recorded_rounds(monkeypatch)
     clean = {c.name: c for c in fault_cases(300, 1)}["none"].simulation.sequence
     paused = dropped(clean, 100, 45)
     assert np.degrees(np.abs(paused.thetas[100] - paused.thetas[99])).max() > 30.0
@@ -200,16 +207,7 @@ def test_a_reacquisition_pending_when_the_recording_ends_is_carried_out(
     motion prior across the gap."""
     from apcc_graph.bench.reliability import fault_cases
     from apcc_graph.estimation.blackout import BlackoutWarning
-    from apcc_graph.estimation.smoother.restarts import Recovery
-
-    rounds: list[list[int]] = []
-    carried_out = Recovery.reacquire
-
-    def recorded(self: Recovery, kept: object) -> object:
-        rounds.append(list(kept.slots))  # type: ignore[attr-defined]
-        return carried_out(self, kept)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(Recovery, "reacquire", recorded)
+    rounds = recorded_rounds(monkeypatch)
     clean = {c.name: c for c in fault_cases(300, 1)}["none"].simulation.sequence
     paused = dropped(clean.head(280), 220, 45)  # 235 frames, the last 15 after the pause
     renamed = {cam: type(t)(t.frames, t.track_ids + 1_000_000 * (t.frames >= 220), t.uv)
