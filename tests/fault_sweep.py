@@ -4,8 +4,8 @@ truth: ``python tests/fault_sweep.py blind 7 11 12 13``.
 The three-segment robot of the benchmarks in the room scene (4000 points), 240 frames at
 30 fps, 1 px, 10% outliers; the fault at frame 80: ``blind`` (every camera blind for 1 s,
 tracks back under new ids), ``blind_ids`` (the same, the tracks' old ids kept), ``pause``
-(1.5 s of frames dropped, ids kept), ``cam3`` (camera 3 blind for 3 s), ``pause_new`` (the same, tracks back
-under new ids), ``nocam2`` (camera 2 never sees anything) or ``none``.
+(1.5 s of frames dropped, ids kept), ``pause_new`` (the same, tracks back under new ids),
+``cam3`` (camera 3 blind for 3 s), ``nocam2`` (camera 2 never sees anything) or ``none``.
 Prints per seed the RMS error per segment over every frame and over the frames from 2 s after
 the tracks return, the worst error after their return, and the warnings (degrees). For the
 sweep over every fault and both measurement models see ``apcc-graph bench reliability``.
