@@ -7,7 +7,9 @@ tracks back under new ids), ``blind_ids`` (the same, the tracks' old ids kept), 
 (1.5 s of frames dropped, ids kept), ``pause_new`` (the same, tracks back under new ids),
 ``cam3`` (camera 3 blind for 3 s), ``nocam2`` (camera 2 never sees anything) or ``none``.
 Prints per seed the RMS error per segment over every frame and over the frames from 2 s after
-the tracks return, the worst error after their return, and the warnings (degrees). For the
+the tracks return, the worst error after their return, and the warnings (degrees).
+``--method batch@smoother`` starts the batch from the smoother's answer (is the smoother's
+error a basin?). For the
 sweep over every fault and both measurement models see ``apcc-graph bench reliability``.
 """
 
@@ -21,6 +23,7 @@ import warnings
 import numpy as np
 
 from apcc_graph.bench.smoother import FPS, ROBOT_FILE
+from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.io.robot_file import load_robot
@@ -49,8 +52,12 @@ def run(kind: str, seed: int, method: str, model_sigma: tuple[float, float] | No
     began = time.monotonic()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        est = estimate(seq, method=method, theta0=seq.thetas[0], noise_px=1.0,
-                       graph=GraphOptions(model_sigma=model_sigma))
+        graph = GraphOptions(model_sigma=model_sigma)
+        est = estimate(seq, method=method.split("@")[-1], theta0=seq.thetas[0], noise_px=1.0,
+                       graph=graph)
+        if method == "batch@smoother":  # the batch started from the smoother's answer
+            est = batch_estimate(seq, seq.thetas[0], initial=est.thetas, marginals=False,
+                                 options=graph)
     err = np.degrees(est.thetas - seq.thetas)
     after = min(back + 2 * int(FPS), seq.n_frames - 1)
     said = sorted({w.category.__name__ for w in caught})
@@ -65,7 +72,9 @@ def main() -> None:
     parser.add_argument("fault", choices=["none", "blind", "blind_ids", "pause", "pause_new",
                                           "cam3", "nocam2"])
     parser.add_argument("seeds", type=int, nargs="+")
-    parser.add_argument("--method", default="smoother", choices=["smoother", "batch"])
+    parser.add_argument("--method", default="smoother",
+                        choices=["smoother", "batch", "batch@smoother"],
+                        help="batch@smoother: the batch started from the smoother's answer")
     parser.add_argument("--model-sigma", default=None, metavar="MM,DEG",
                         help="model error as noise (default: the exact model)")
     args = parser.parse_args()
