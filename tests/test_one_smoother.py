@@ -52,8 +52,8 @@ def test_an_update_runs_its_stages_in_order(options: GraphOptions) -> None:
         smoother.update(seq.frame(f))
     assert calls == ["judge", "make_room", "retire", "associate", "known_rows", "enter",
                      "observe", "replaceable", "read"]
-    assert smoother.measurement_model == ("exact" if options.model_sigma is None
-                                          else "model noise")
+    # the default: the robot file's model error, none here: the exact model
+    assert smoother.measurement_model == ("model noise" if options is NOISE else "exact")
 
 
 def test_exact_against_model_noise_is_decided_in_one_place() -> None:

@@ -299,7 +299,7 @@ _BROKEN = [
     ("missing-format", _edit(PAPER_SINGLE, _FORMAT_LINE, ""), "format"),
     (
         "wrong-format",
-        _edit(PAPER_SINGLE, _FORMAT_LINE, 'format = "apcc-graph/robot@2"'),
+        _edit(PAPER_SINGLE, _FORMAT_LINE, 'format = "apcc-graph/robot@9"'),
         "format",
     ),
     ("format-not-a-string", _edit(PAPER_SINGLE, _FORMAT_LINE, "format = 1"), "format"),

@@ -1,11 +1,15 @@
 """``apcc-graph bench real``: the estimators on a real robot's motion, beside the floor
 (docs/estimation.md, "Replaying a real robot's motion").
 
-For each recording: calibrate the robot from its backbone poses (k, delta_max, marker offsets),
-replay the measured motion with tip cameras seeing a simulated room, and estimate with the chain,
-the batch (exact model), the batch with model error as noise (``noise``), the smoother and the
-smoother with model error as noise (``smoother-noise``) from the floor's first configuration
-(the start given, with a prior). A last row, ``noise@floor``, is
+For each recording: calibrate the robot from its backbone poses (k, delta_max, marker offsets
+and each segment's model error), replay the measured motion with tip cameras seeing a simulated
+room, and estimate from the floor's first configuration (the start given, with a prior) with the
+chain, the batch and the smoother as a user gets them (``batch``, ``smoother``: the calibrated
+robot file, whose model errors they take as noise), the same with the exact model forced
+(``batch-exact``, ``smoother-exact``), and with the bench's own model noise (``noise``,
+``smoother-noise``). The model-exact version of the motion gets the model errors that the
+calibration of the model's own motion (with white marker noise) measures:
+:func:`~apcc_graph.calibration.model_exact.model_exact_poses`. A last row, ``noise@floor``, is
 a yardstick rather than an estimator: the batch with model noise started at the floor's bends of
 every frame, i.e. what the model-noise problem gives when its start is in the right basin.
 Each estimate's tips are compared with the measured tips beside the floor (the model's tips at the
@@ -27,16 +31,18 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from apcc_graph.calibration.backbone_fit import fit_backbone
+from apcc_graph.calibration.backbone_fit import BackboneCalibration, fit_backbone
+from apcc_graph.calibration.model_exact import model_exact_poses
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.model_fit import ModelFitWarning
+from apcc_graph.estimation.model_noise import ROBOT, describe, segment_sigmas
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import FaultOptions, SmootherOptions, WindowOptions
@@ -49,7 +55,7 @@ from apcc_graph.evaluation.tip_floor import (
     tip_errors,
     tip_floor,
 )
-from apcc_graph.io.backbone_poses import load_backbone_poses
+from apcc_graph.io.backbone_poses import BackbonePoses, load_backbone_poses
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
@@ -61,10 +67,14 @@ PEERS = {"smoother-qr": SmootherOptions(window=WindowOptions(factorization="QR")
          "smoother-gate": SmootherOptions(faults=FaultOptions(rotation_gate=0.02))}
 """Smoother variants the bench can run beside the default: ``smoother-qr`` factors its window
 by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad)."""
-METHODS = ("chain", "batch", "noise", "smoother", "smoother-noise", "noise@floor", *PEERS)
-"""Every method the bench knows (``smoother-noise``: the smoother with model error as noise);
-the :data:`PEERS` are not in the default list."""
-SMOOTHERS = ("smoother", "smoother-noise", *PEERS)
+EXACT = ("batch-exact", "smoother-exact")
+"""The batch and the smoother with the exact model forced (``--exact-model``)."""
+METHODS = ("chain", "batch", "smoother", "batch-exact", "smoother-exact", "noise",
+           "smoother-noise", "noise@floor", *PEERS)
+"""Every method the bench knows. ``batch`` and ``smoother`` are the defaults: the robot file
+from the calibration, with its model errors; ``noise`` and ``smoother-noise`` take the bench's
+``model_sigma`` instead. The :data:`PEERS` are not in the default list."""
+SMOOTHERS = ("smoother", "smoother-exact", "smoother-noise", *PEERS)
 """The methods whose yardstick on the model-exact motion is the lag bound."""
 MODEL_SIGMA = (1e-3, math.radians(0.5))
 """The benchmark's model noise (position m, rotation rad) for ``noise`` and ``noise@floor``."""
@@ -91,6 +101,8 @@ class RealRow:
         warned: in how many of the stretches the residual test warned.
         stretches: how many stretches the row pools.
         restarts: how many times gtsam failed on a smoother's window (it restarted).
+        model: the measurement model the calibrated robot file gives ``batch`` and
+            ``smoother`` on this version of the motion.
     """
 
     recording: str
@@ -106,6 +118,7 @@ class RealRow:
     warned: int = 0
     stretches: int = 0
     restarts: int = 0
+    model: str = ""
 
 
 def _pooled(errors: list[TipErrors]) -> TipErrors:
@@ -131,12 +144,15 @@ def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, n
                                                    theta0_sigma=start_sigma,
                                                    model_sigma=model_sigma))
     graph = (GraphOptions(model_sigma=model_sigma) if method in ("noise", "smoother-noise")
-             else None)
+             else GraphOptions(model_sigma=None) if method in EXACT else None)
+    if method == "smoother-exact":
+        method = "smoother"
     if method in SMOOTHERS and method != "smoother":
         return estimate(seq, method="smoother", spatial=True, theta0=floor.thetas[0],
                         psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px,
                         settings=PEERS.get(method), graph=graph)
-    return estimate(seq, method="batch" if method == "noise" else method, spatial=True,
+    return estimate(seq, method="batch" if method in ("noise", "batch-exact") else method,
+                    spatial=True,
                     theta0=floor.thetas[0], psi0=floor.psis[0], theta0_sigma=start_sigma,
                     noise_px=noise_px, graph=graph)
 
@@ -152,6 +168,17 @@ def _bounds(seq: Sequence, methods: tuple[str, ...]) -> dict[str, int | None]:
     return out
 
 
+def _model_exact_robot(poses: BackbonePoses, cal: BackboneCalibration, robot: Robot,
+                       seed: int) -> Robot:
+    """The model-exact motion's robot: the calibrated model, with the model error that the
+    calibration of the model's own motion measures (zero where the markers' noise is white)."""
+    model = cal.robot(robot)
+    itself = fit_backbone(model_exact_poses(poses, cal, robot, seed=seed), robot)
+    return Robot([replace(seg, model_error=error) for seg, error
+                  in zip(model.segments, itself.model_errors, strict=True)],
+                 list(model.cameras))
+
+
 def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers: float,
                     seed: int, start_sigma: float, methods: tuple[str, ...],
                     model_sigma: tuple[float, float] = MODEL_SIGMA) -> list[RealRow]:
@@ -160,6 +187,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
     poses = load_backbone_poses(poses_path)
     cal = fit_backbone(poses, robot)
     model = cal.robot(robot)
+    exact_model = _model_exact_robot(poses, cal, robot, seed)
     markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
     ends = measured_ends(poses, model, markers)
     options = dict(noise_px=noise_px, outlier_fraction=outliers, seed=seed)
@@ -168,11 +196,13 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
     seconds: dict[tuple[str, str], float] = {}
     honesty: dict[tuple[str, str], list[_Honesty]] = {}
     restarts: dict[tuple[str, str], int] = {}
+    models = {version: describe(segment_sigmas(ROBOT, r))
+              for version, r in (("real", model), ("model-exact", exact_model))}
     turns = []
     for k in kept:
         real = replay_motion(model, ends, stretch=k, **options).simulation.sequence
         floor = tip_floor(model, real.truth_tips)
-        exact_sim = replay_motion(model, ends, model_tips=floor.tips, bends=floor.bends,
+        exact_sim = replay_motion(exact_model, ends, model_tips=floor.tips, bends=floor.bends,
                                   stretch=k, **options).simulation
         exact = exact_sim.sequence
         for method, lag in _bounds(exact, methods).items():
@@ -208,7 +238,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
         rows.append(RealRow(name, version, method, pooled.rms_position, pooled.rms_tangent,
                             seconds.get((version, method), 0.0), len(pooled.position), turn,
                             nees, misfit, warned, len(errs),
-                            restarts.get((version, method), 0)))
+                            restarts.get((version, method), 0), models[version]))
     return rows
 
 
@@ -288,13 +318,26 @@ def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers:
     return rows
 
 
+def _model_lines(rows: list[RealRow]) -> list[str]:
+    """What the default batch and smoother ran on each recording and motion."""
+    lines, said = [], set()
+    for r in rows:
+        if r.model and (r.recording, r.version) not in said:
+            said.add((r.recording, r.version))
+            lines.append(f"batch, smoother on {r.recording}, {r.version} motion: {r.model} "
+                         "(the calibration's robot file)")
+    if any(r.method in EXACT for r in rows):
+        lines.append("batch-exact, smoother-exact: the exact model forced (--exact-model)")
+    return lines
+
+
 def format_real_bench(rows: list[RealRow]) -> str:
     """The table: RMS tip position and tangent error per segment end, and the ratio to the
     recording's yardstick: the floor on the measured motion; on the model-exact motion the
     bound (the lag bound for a smoother)."""
     n_seg = len(rows[0].position)
     head = "".join(f"{f'tip {i + 1} mm':>10}{'/yard':>8}{'deg':>7}" for i in range(n_seg))
-    lines = [f"{'recording':<17}{'motion':<13}{'method':<10}{head}{'time s':>9}"]
+    lines = [f"{'recording':<17}{'motion':<13}{'method':<16}{head}{'time s':>9}"]
     for r in rows:
         yard = _yardstick(rows, r)
         cells = ""
@@ -303,7 +346,7 @@ def format_real_bench(rows: list[RealRow]) -> str:
             tangent = math.degrees(r.tangent[i])
             cells += (f"{r.position[i] * 1e3:>10.2f}{ratio:>8}"
                       + (f"{tangent:>7.2f}" if math.isfinite(tangent) else f"{'-':>7}"))
-        lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<10}{cells}{r.seconds:>9.1f}")
+        lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<16}{cells}{r.seconds:>9.1f}")
     lines.append("/yard: over the yardstick of the same recording and motion: the floor on the "
                  "measured motion; on the model-exact motion the bound (the lag bound for a "
                  "smoother)")
@@ -318,6 +361,7 @@ def format_real_bench(rows: list[RealRow]) -> str:
                      f"{SmootherOptions().window.lag:g} s lag; from the "
                      "pixels and the start prior, without the motion prior the estimators add "
                      "(which can take them below it where the robot moves slowly)")
+    lines += _model_lines(rows)
     if any(r.method in ("noise", "noise@floor") for r in rows):
         lines.append("noise: the batch with model error as noise; noise@floor: the same started "
                      "at the floor's bends of every frame (a yardstick: the right basin given)")
@@ -328,13 +372,13 @@ def format_real_bench(rows: list[RealRow]) -> str:
                      "when the sigmas cover the errors), and the residual test: the share of "
                      "each camera's model-free inliers the model rejects at the estimate "
                      "(0.2% expected when the model explains the images; warns above 5%)")
-        lines.append(f"{'recording':<17}{'motion':<13}{'method':<10}"
+        lines.append(f"{'recording':<17}{'motion':<13}{'method':<16}"
                      + "".join(f"{f'(e/s)^2 {i + 1}':>12}" for i in range(n_seg))
                      + "".join(f"{f'rejected {i + 1}':>12}" for i in range(n_seg))
                      + f"{'warned':>10}{'restarts':>10}")
         for r in honest:
             assert r.nees is not None and r.misfit is not None
-            lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<10}"
+            lines.append(f"{r.recording:<17}{r.version:<13}{r.method:<16}"
                          + "".join(f"{v:>12.3g}" for v in r.nees)
                          + "".join(f"{'-' if not np.isfinite(v) else f'{100 * v:.1f}%':>12}"
                                    for v in r.misfit)

@@ -20,7 +20,8 @@ Parameters that end at a bound, that the data cannot tell from another (correlat
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -34,11 +35,14 @@ from apcc_graph.calibration.backbone_model import (
     model_relative_poses,
     pose_matrices,
     rigid_inverse,
+    rotation_errors,
     tangent_angles,
 )
 from apcc_graph.calibration.backbone_solve import OFFSET_REACH, ProjectedProblem
+from apcc_graph.calibration.model_error import measure_model_error
 from apcc_graph.io.backbone_poses import BackbonePoses, segment_markers
 from apcc_graph.model.arrays import FloatArray, rms
+from apcc_graph.model.model_error import ModelError
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 
@@ -95,6 +99,9 @@ class BackboneCalibration:
         skipped: samples left out because a base or segment-end marker was missing.
         warnings: parameters at a bound, not told apart, or held by the prior; a bend beyond
             theta_max.
+        model_errors: per segment, its departure from the calibrated model that persists
+            from sample to sample (:mod:`~apcc_graph.calibration.model_error`); the robot of
+            :meth:`robot` carries them.
     """
 
     segments: tuple[Segment, ...]
@@ -109,10 +116,14 @@ class BackboneCalibration:
     sample_times: FloatArray
     skipped: int
     warnings: tuple[str, ...]
+    model_errors: tuple[ModelError, ...] = ()
 
     def robot(self, robot: Robot) -> Robot:
-        """``robot`` with these segments (its cameras kept)."""
-        return Robot(list(self.segments), list(robot.cameras))
+        """``robot`` with these segments and their model errors (its cameras kept)."""
+        segments = [seg if i >= len(self.model_errors)
+                     else replace(seg, model_error=self.model_errors[i])
+                     for i, seg in enumerate(self.segments)]
+        return Robot(segments, list(robot.cameras))
 
 
 def _measured(poses: BackbonePoses, robot: Robot) -> tuple[FloatArray, FloatArray, FloatArray,
@@ -139,6 +150,17 @@ def _segment_residuals(layout: Layout, z: FloatArray, bends: FloatArray, measure
         position=np.linalg.norm(model[:, i, :3, 3] - measured[:, i, :3, 3], axis=-1),
         tangent=tangent_angles(model[:, i], measured[:, i]))
         for i in range(layout.n_segments))
+
+
+def _model_errors(layout: Layout, z: FloatArray, bends: FloatArray, measured: FloatArray,
+                  times: FloatArray, source: str) -> tuple[ModelError, ...]:
+    """Each segment's persistent departure from the fitted model (its residuals' position
+    and rotation parts; :func:`~apcc_graph.calibration.model_error.measure_model_error`)."""
+    model = model_relative_poses(layout, z, bends)
+    return tuple(measure_model_error(model[:, i, :3, 3] - measured[:, i, :3, 3],
+                                     rotation_errors(measured[:, i], model[:, i]), times,
+                                     source)
+                 for i in range(layout.n_segments))
 
 
 def _lag_one_correlation(rows: FloatArray) -> float:
@@ -290,4 +312,6 @@ def fit_backbone(
         skipped=skipped,
         warnings=tuple(_warnings(layout, z, cov, arclengths, prior,
                                  np.linalg.norm(bends, axis=-1))),
+        model_errors=_model_errors(layout, z, bends, measured, poses.timestamps[used],
+                                   "/".join(Path(str(poses.source)).parts[-2:])),
     )

@@ -20,12 +20,13 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         "real", epilog=f"examples:\n  {EXAMPLES['real']}", formatter_class=FORMATTER,
         help="the estimators on a real robot's motion: tip errors beside the floor",
         description="For each recording of a real two-segment robot (data/real_tdcr): "
-        "calibrate the robot from its backbone poses, replay the measured motion with tip "
-        "cameras seeing a simulated room (1 px, 10%% outliers), estimate with the chain, the "
-        "batch, the batch with model error as noise, the smoother and the smoother with "
-        "model error as noise (smoother-noise) from the floor's first "
-        "configuration (2 deg prior), and the yardstick noise@floor (the batch with model noise "
-        "started at the floor's bends of every frame), and print "
+        "calibrate the robot from its backbone poses (with each segment's model error), replay "
+        "the measured motion with tip cameras seeing a simulated room (1 px, 10%% outliers), "
+        "estimate with the chain, the batch and the smoother as a user gets them (the "
+        "calibrated robot file's model error as noise), the same with the exact model forced "
+        "(batch-exact, smoother-exact) from the floor's first configuration (2 deg prior), and "
+        "the yardstick noise@floor (the batch with model noise started at the floor's bends of "
+        "every frame), and print "
         "the RMS tip errors beside the floor (the model's best fit to the measured tips); then "
         "the same on the model-exact version of the motion.")
     rb.add_argument("--data", default="data/real_tdcr",
@@ -35,17 +36,22 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                     help="the robot to calibrate (default: %(default)s)")
     rb.add_argument("--recordings", default="slow_free_space,impulse_2",
                     help="recordings, comma-separated (default: %(default)s)")
-    rb.add_argument("--methods", default="chain,batch,noise,smoother,smoother-noise,noise@floor",
-                    help="estimators, comma-separated (default: %(default)s); peers to add: "
-                    "smoother-qr (the smoother factoring its window by QR), smoother-gate "
-                    "(the smoother with the model-free outlier gate)")
+    rb.add_argument("--methods",
+                    default="chain,batch,smoother,batch-exact,smoother-exact,noise@floor",
+                    help="estimators, comma-separated (default: %(default)s): batch and "
+                    "smoother as a user gets them (the calibrated robot file's model error as "
+                    "noise), *-exact with the exact model forced; peers to add: noise and "
+                    "smoother-noise (with --model-sigma), smoother-qr (the smoother factoring "
+                    "its window by QR), smoother-gate (the smoother with the model-free "
+                    "outlier gate)")
     rb.add_argument("--noise-px", type=non_negative, default=1.0, help="pixel noise (default 1)")
     rb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction (default 0.1)")
     rb.add_argument("--start-sigma-deg", type=positive, default=2.0,
                     help="the start prior's sigma, degrees (default 2)")
     rb.add_argument("--seed", type=int, default=0, help="replay seed (default 0)")
     rb.add_argument("--model-sigma", type=model_sigma, default="1,0.5", metavar="MM,DEG",
-                    help="model noise of noise and noise@floor: tip position mm, rotation deg "
+                    help="model noise of noise, smoother-noise and noise@floor: tip position mm, "
+                    "rotation deg "
                     "(default: %(default)s)")
     rb.set_defaults(run=run_real)
 

@@ -81,6 +81,27 @@ def model_sigma(text: str) -> tuple[float, float]:
     return mm * 1e-3, math.radians(deg)
 
 
+def add_model_options(parser: argparse.ArgumentParser) -> None:
+    """``--model-sigma MM,DEG`` and ``--exact-model``, one or neither: the measurement model of
+    the batch and the smoother (by default the robot file's model error)."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--model-sigma", type=model_sigma, default=None, metavar="MM,DEG",
+                       help="model error as noise for every segment: how far a segment's tip "
+                       "may depart from its kinematic model, position in mm and rotation in "
+                       "degrees, e.g. 1,0.5 (default: each segment's model_error in the robot "
+                       "file, which apcc-graph calibrate writes; the exact model where the "
+                       "file has none); docs/estimation.md")
+    group.add_argument("--exact-model", action="store_true",
+                       help="the exact model, whatever model error the robot file gives")
+
+
+def chosen_model_sigma(args: argparse.Namespace) -> object:
+    """``GraphOptions.model_sigma`` of :func:`add_model_options`' flags."""
+    if getattr(args, "exact_model", False):
+        return None
+    return "robot" if args.model_sigma is None else args.model_sigma
+
+
 def at_least(minimum: int) -> Callable[[str], float]:
     """An option type: an integer of at least ``minimum``."""
     return _number_type(lambda v: v >= minimum, f"an integer >= {minimum}", int)

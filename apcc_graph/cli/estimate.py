@@ -15,10 +15,11 @@ from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
     add_dask_options,
+    add_model_options,
     check_output_folder,
+    chosen_model_sigma,
     degree_list,
     force_option,
-    model_sigma,
     out_option,
 )
 from apcc_graph.model.robot import Robot
@@ -88,11 +89,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     est.add_argument("--noise-px", type=float, default=1.0,
                      help="pixel noise of the tracks, standard deviation per coordinate "
                      "(default: %(default)s); sets the outlier threshold and the sigmas")
-    est.add_argument("--model-sigma", type=model_sigma, default=None, metavar="MM,DEG",
-                     help="model error as noise (--method batch or smoother): how far a "
-                     "segment's tip may "
-                     "depart from its kinematic model, position in mm and rotation in degrees, "
-                     "e.g. 1,0.5 (default: the exact model); docs/estimation.md")
+    add_model_options(est)
     est.add_argument("--calibrate", nargs="?", const="all", default=None,
                      choices=CALIBRATE_CHOICES,
                      help="self-calibration (--method batch): estimate with the angles each "
@@ -209,11 +206,11 @@ def _options(args: argparse.Namespace) -> dict:
     if not (math.isfinite(args.noise_px) and args.noise_px > 0.0):
         raise UserError(f"--noise-px {args.noise_px!r}: expected a positive number of pixels")
     options["noise_px"] = args.noise_px
-    if args.model_sigma is not None:
-        if args.method == "chain":
-            raise UserError("--model-sigma applies to --method batch or smoother (the chain "
-                            "has no model noise)")
-        options["graph"] = GraphOptions(model_sigma=args.model_sigma)
+    if args.model_sigma is not None and args.method == "chain":
+        raise UserError("--model-sigma applies to --method batch or smoother (the chain "
+                        "has no model noise)")
+    if args.method != "chain":
+        options["graph"] = GraphOptions(model_sigma=chosen_model_sigma(args))
     if args.calibrate:
         if args.method != "batch":
             raise UserError("--calibrate: self-calibration runs in --method batch")
@@ -310,6 +307,22 @@ def calibration_lines(given: Robot, result: Estimate,
     return lines
 
 
+def model_line(model_sigma: object, robot: Robot, calibrating: bool) -> str:
+    """Which measurement model ran, and where its noise came from."""
+    from apcc_graph.estimation.model_noise import ROBOT, describe, segment_sigmas
+
+    if calibrating and model_sigma == ROBOT:
+        return "the exact model (self-calibration fits the model itself)"
+    text = describe(segment_sigmas(model_sigma, robot))  # type: ignore[arg-type]
+    if model_sigma is None:
+        return text + " (--exact-model)"
+    if model_sigma != ROBOT:
+        return text + " (--model-sigma)"
+    if text.startswith("model"):
+        return text + " per segment, the robot file's model_error"
+    return text + " (the robot file gives no model error)"
+
+
 def _run_one(args: argparse.Namespace, folder: str) -> str:
     """One sequence: estimate, write the estimate (and the calibrated robot), summarise."""
     from apcc_graph.estimation.methods import estimate
@@ -337,6 +350,9 @@ def _run_one(args: argparse.Namespace, folder: str) -> str:
             written = [*written, staging / "robot_calibrated.toml"]
     lines = [f"{args.method}: {result.n_frames} frames, {sequence.n_segments} segments -> "
              f"{args.out} ({', '.join(p.name for p in written)})"]
+    if args.method != "chain":
+        lines.append("measurement model: " + model_line(options["graph"].model_sigma,
+                                                         sequence.robot, bool(args.calibrate)))
     if result.start is not None:
         found = result.start
         lines.append(f"start found from the first {found.seconds:.2f} s ({found.n_frames} "

@@ -14,10 +14,11 @@ import numpy as np
 from apcc_graph.cli.common import (
     FORMATTER,
     UserError,
+    add_model_options,
     check_output_folder,
+    chosen_model_sigma,
     force_option,
     int_list,
-    model_sigma,
     non_negative,
 )
 
@@ -65,9 +66,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                       help="starting configuration, degrees, one per segment (default: searched in "
                       "the first second of frames)")
     live.add_argument("--lag", type=float, default=1.0, help="smoother lag, seconds (default 1)")
-    live.add_argument("--model-sigma", type=model_sigma, default=None, metavar="MM,DEG",
-                      help="model error as noise: how far a segment's tip may depart from the "
-                           "model (millimetres, degrees); default the exact model")
+    add_model_options(live)
     live.add_argument("--sync-tolerance", type=non_negative, default=None,
                       help="seconds between the cameras' images of one frame (bag, videos)")
     live.add_argument("--no-realtime", action="store_true",
@@ -100,7 +99,7 @@ def run(args: argparse.Namespace) -> str:
         _empty(out)  # rows are appended as they come: the old run's files must not stay
     estimator = LiveEstimator(robot, theta0, SmootherOptions(window=WindowOptions(lag=args.lag)),
                               realtime=not args.no_realtime,
-                              graph=GraphOptions(model_sigma=args.model_sigma))
+                              graph=GraphOptions(model_sigma=chosen_model_sigma(args)))
     files = AppendedEstimate(out, robot.n_segments, lambda th: robot.forward(th))
     status = StatusLine()
     latencies, processed, began = [], 0, time.monotonic()

@@ -46,7 +46,7 @@ def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
     ``init``: the chain or the fixed-lag smoother, started at ``start = (theta0, psi0)``)."""
     shape = (sequence.n_frames, bending.dim)
     if initial is None and init == "smoother":
-        # The smoother has the exact model only.
+        # The exact smoother: a quick, good start for either measurement model.
         first = smoother_estimate(sequence, theta0=start[0], psi0=start[1],
                                   options=replace(options, model_sigma=None),
                                   settings=SmootherOptions(window=WindowOptions(uncertainty=False)),

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from apcc_graph.estimation.model_fit import ModelFit
+from apcc_graph.estimation.model_noise import ROBOT
 from apcc_graph.estimation.observation_checks import (  # noqa: F401 - part of this API
     FEW_TRACKS_PER_FRAME,
     ObservationWarning,
@@ -187,7 +188,7 @@ def _run(sequence: Sequence, theta0: ArrayLike, psi0: ArrayLike | None, spatial:
     if isinstance(settings, ChainOptions):
         from apcc_graph.estimation.chain import chain_estimate
 
-        if graph.model_sigma is not None:
+        if graph.model_sigma not in (None, ROBOT):  # the robot file's: the chain ignores it
             raise ValueError("GraphOptions.model_sigma (model error as noise) applies to the "
                              "batch and the smoother; the chain has the exact model")
 

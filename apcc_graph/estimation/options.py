@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 from apcc_graph.estimation.image_motion import STILL_TICK
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
+from apcc_graph.estimation.model_noise import ROBOT, ModelSigma, normalised
 
 
 @dataclass(frozen=True)
@@ -43,12 +44,15 @@ class GraphOptions:
             stands still lasts until it has moved, so that its point has parallax
             (:func:`apcc_graph.estimation.image_motion.motion_clock`); ``None`` counts every
             frame as 1.
-        model_sigma: how far a real segment's tip may depart from its kinematic model:
-            ``(position in metres, rotation in radians)``, the standard deviation of each
-            component of the tip pose's departure in the tip's frame (docs/estimation.md,
-            "Model error as noise"). ``None`` (default) is the exact model: every observation
-            is projected through the model's camera poses. The batch and the smoother
-            (:mod:`apcc_graph.estimation.smoother.noisy`); not the chain.
+        model_sigma: how far a real segment's tip may depart from its kinematic model, the
+            standard deviation of each component of the tip pose's departure in the tip's
+            frame (docs/estimation.md, "Model error as noise"). ``"robot"`` (default): each
+            segment's model error as the calibration wrote it into the robot file, and the
+            exact model where the file has none (or zero); ``None``: the exact model, every
+            observation projected through the model's camera poses, whatever the file says;
+            ``(position in metres, rotation in radians)``: that noise for every segment; or
+            one such pair per segment (:mod:`apcc_graph.estimation.model_noise`). The batch
+            and the smoother; the chain has the exact model (it refuses an explicit noise).
     """
 
     threshold_px: float = 1.0
@@ -59,15 +63,10 @@ class GraphOptions:
     min_track_rows: int = 2
     max_track_frames: int | None = 150
     still_tick: float | None = STILL_TICK
-    model_sigma: tuple[float, float] | None = None
+    model_sigma: ModelSigma = ROBOT
 
     def __post_init__(self) -> None:
-        if self.model_sigma is not None:
-            sigma = tuple(float(v) for v in self.model_sigma)
-            if len(sigma) != 2 or not all(math.isfinite(v) and v > 0.0 for v in sigma):
-                raise ValueError(f"GraphOptions.model_sigma = {self.model_sigma!r}: expected "
-                                 "None or (position m, rotation rad), both finite and > 0")
-            object.__setattr__(self, "model_sigma", sigma)
+        object.__setattr__(self, "model_sigma", normalised(self.model_sigma))
         for name in ("threshold_px", "theta0_sigma", "limit_sigma"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):

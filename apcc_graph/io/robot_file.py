@@ -1,5 +1,11 @@
-"""The ``robot.toml`` file (format ``apcc-graph/robot@1``, docs/formats.md), and the camera table
-it shares with the setup file of calibration photos (:func:`camera_from_table`).
+"""The ``robot.toml`` file (formats ``apcc-graph/robot@1`` and ``@2``, docs/formats.md), and the
+camera table it shares with the setup file of calibration photos (:func:`camera_from_table`).
+
+Version 2 adds each segment's measured departure from its model, ``[segments.model_error]``
+(:class:`~apcc_graph.model.model_error.ModelError`: ``position_mm``, ``rotation_deg``, the
+optional ``correlation_s`` and ``measured``, how it was measured). A robot with a model error is
+written as version 2, any other as version 1, which version-1 readers keep reading; both are
+read.
 
 Angles are degrees in the file (keys ending in ``_deg``) and radians in memory. The camera mounting
 ``tip_T_cam`` is a translation in metres and a unit quaternion ``(w, x, y, z)``. Every error names
@@ -25,10 +31,13 @@ from apcc_graph.io.poses import (
 from apcc_graph.io.toml_fields import TomlTable, read_toml
 from apcc_graph.io.units import PLAUSIBLE_LENGTH_M, UnitsWarning
 from apcc_graph.model.camera import TipCamera
+from apcc_graph.model.model_error import ModelError
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.segment import Segment
 
 ROBOT_FORMAT = "apcc-graph/robot@1"
+ROBOT_FORMAT_MODEL_ERROR = "apcc-graph/robot@2"
+"""The version that carries the segments' model errors."""
 
 _SEGMENT_KEYS = {
     "length": "length",
@@ -40,14 +49,35 @@ _CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "model"
                 "tip_T_cam")
 
 
-def _segment_from(table: TomlTable) -> Segment:
-    table.check_keys(list(_SEGMENT_KEYS.values()) + ["camera"], required=_SEGMENT_KEYS.values())
-    values = {
+def _model_error_from(table: TomlTable) -> ModelError:
+    table.check_keys(("position_mm", "rotation_deg", "correlation_s", "measured"),
+                     required=("position_mm", "rotation_deg"))
+    values: dict[str, Any] = {"position": table.number("position_mm") / 1000.0,
+                              "rotation": math.radians(table.number("rotation_deg"))}
+    if table.has("correlation_s"):
+        values["correlation_time"] = table.number("correlation_s")
+    if table.has("measured"):
+        values["measured"] = table.string("measured")
+    try:
+        return ModelError(**values)
+    except ValueError as exc:
+        raise table.error("", str(exc)) from None
+
+
+def _segment_from(table: TomlTable, version: int) -> Segment:
+    allowed = [*_SEGMENT_KEYS.values(), "camera"] + (["model_error"] if version >= 2 else [])
+    if version < 2 and table.has("model_error"):
+        raise table.error("model_error", f"a segment's model error needs format = "
+                          f"{ROBOT_FORMAT_MODEL_ERROR!r}")
+    table.check_keys(allowed, required=_SEGMENT_KEYS.values())
+    values: dict[str, Any] = {
         "length": table.metres("length"),
         "k": table.number("k"),
         "delta_max": math.radians(table.number("delta_max_deg")),
         "theta_max": math.radians(table.number("theta_max_deg")),
     }
+    if table.has("model_error"):
+        values["model_error"] = _model_error_from(table.table("model_error"))
     try:
         return Segment(**values)
     except ValueError as exc:
@@ -117,10 +147,14 @@ def robot_from_toml(data: dict[str, Any], path: str | Path = "<robot.toml>") -> 
     The optional ``[[markers]]`` tables are checked too (:func:`markers_from_toml`)."""
     top = TomlTable(path, "", data)
     top.check_keys(("format", "segments", "markers"), required=("format", "segments"))
-    top.check_format(ROBOT_FORMAT)
+    found = top.string("format")
+    if found not in (ROBOT_FORMAT, ROBOT_FORMAT_MODEL_ERROR):
+        raise top.error("format", f"expected {ROBOT_FORMAT!r} or {ROBOT_FORMAT_MODEL_ERROR!r} "
+                        f"(with the segments' model errors), got {found!r}")
+    version = 2 if found == ROBOT_FORMAT_MODEL_ERROR else 1
     segments, cameras = [], []
     for table in top.tables("segments"):
-        segments.append(_segment_from(table))
+        segments.append(_segment_from(table, version))
         cameras.append(camera_from_table(table.table("camera")) if table.has("camera") else None)
     markers_from_toml(data, path)
     return Robot(segments, cameras)
@@ -221,6 +255,14 @@ def robot_to_toml(robot: Robot, markers: Mapping[float, np.ndarray] | None = Non
             "delta_max_deg": _segment_degrees(seg)[0],
             "theta_max_deg": _segment_degrees(seg)[1],
         }
+        if seg.model_error is not None:
+            error = seg.model_error
+            entry["model_error"] = {"position_mm": float(f"{error.position * 1e3:.15g}"),
+                                    "rotation_deg": _degrees(error.rotation)}
+            if error.correlation_time is not None:
+                entry["model_error"]["correlation_s"] = float(f"{error.correlation_time:.6g}")
+            if error.measured:
+                entry["model_error"]["measured"] = error.measured
         if cam is not None:
             entry["camera"] = {
                 "fx": cam.fx,
@@ -234,7 +276,9 @@ def robot_to_toml(robot: Robot, markers: Mapping[float, np.ndarray] | None = Non
                 "tip_T_cam": _pose_to(cam.tip_T_cam),
             }
         segments.append(entry)
-    document: dict[str, Any] = {"format": ROBOT_FORMAT, "segments": segments}
+    carries = any(seg.model_error is not None for seg in robot.segments)
+    document: dict[str, Any] = {"format": ROBOT_FORMAT_MODEL_ERROR if carries else ROBOT_FORMAT,
+                                "segments": segments}
     if markers:
         document["markers"] = [{"arclength": float(arc), "backbone_T_marker": _pose_to(pose)}
                                for arc, pose in sorted(markers.items())]

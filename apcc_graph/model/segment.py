@@ -20,6 +20,8 @@ from numbers import Real
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from apcc_graph.model.model_error import ModelError
+
 DEFAULT_THETA_MAX = math.radians(60.0)
 """Default bending limit (radians): the paper's segments bend "generally less than 60 degrees"."""
 
@@ -52,6 +54,10 @@ class Segment:
         k: deviation coefficient, 0 < k < 0.5 (0.25 reproduces PCC to fourth order).
         delta_max: tip-angle deviation at ``theta_max`` in radians, ``|delta_max| < theta_max``.
         theta_max: bending limit in radians, 0 < theta_max <= pi.
+        model_error: how far the real segment departs from this model, as its calibration
+            measured it (:class:`~apcc_graph.model.model_error.ModelError`); ``None`` when
+            nothing was measured. Not part of the kinematics: the estimators take it as the
+            model's noise (docs/estimation.md, "Model error from the calibration").
 
     Raises:
         ValueError: a field is not finite or out of range; the message names the field, the value
@@ -62,6 +68,7 @@ class Segment:
     k: float = 0.25
     delta_max: float = 0.0
     theta_max: float = DEFAULT_THETA_MAX
+    model_error: ModelError | None = None
 
     def __post_init__(self) -> None:
         length = require_finite("Segment", "length", self.length)
@@ -81,6 +88,9 @@ class Segment:
                 f"Segment.delta_max = {delta_max!r} rad: expected |delta_max| < theta_max "
                 f"= {theta_max!r} rad"
             )
+        if self.model_error is not None and not isinstance(self.model_error, ModelError):
+            raise ValueError(f"Segment.model_error = {self.model_error!r}: expected a "
+                             "ModelError or None")
         # Store plain floats so that equality, hashing and repr are predictable.
         object.__setattr__(self, "length", length)
         object.__setattr__(self, "k", k)

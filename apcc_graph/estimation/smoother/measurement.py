@@ -9,7 +9,8 @@ how an estimate is read back (:class:`WindowModel`):
 - model error as noise (:class:`~apcc_graph.estimation.smoother.noisy.NoisyTracks`): tip poses
   tied to the kinematics with the model's noise, points and gtsam's C++ projection factors.
 
-:func:`window_model` chooses from ``GraphOptions.model_sigma`` (``None``: exact).
+:func:`window_model` chooses from ``GraphOptions.model_sigma`` and the robot
+(:func:`~apcc_graph.estimation.model_noise.segment_sigmas`; ``None``: exact).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.initial_guess import FrameRows
+from apcc_graph.estimation.model_noise import segment_sigmas
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.projection_tracks import Rows
 from apcc_graph.estimation.smoother.solver import Additions
@@ -110,15 +112,17 @@ class WindowModel(Protocol):
 
 def window_model(robot: Robot, options: GraphOptions, settings: SmootherOptions,
                  window: Window, bending: Bending, inlier_sigmas: float) -> WindowModel:
-    """The measurement model ``options`` names: model error as noise with its
-    ``model_sigma``, else the exact model."""
-    if options.model_sigma is None:
+    """The measurement model ``options`` names: model error as noise where its
+    ``model_sigma`` gives one (by default the robot file's;
+    :func:`~apcc_graph.estimation.model_noise.segment_sigmas`), else the exact model."""
+    sigmas = segment_sigmas(options.model_sigma, robot)
+    if sigmas is None:
         from apcc_graph.estimation.smoother.exact import ExactTracks
 
         return ExactTracks(robot, options, settings, window, bending, inlier_sigmas)
     from apcc_graph.estimation.smoother.noisy import NoisyTracks
 
-    return NoisyTracks(robot, options, settings, window, bending, inlier_sigmas)
+    return NoisyTracks(robot, options, settings, window, bending, inlier_sigmas, sigmas)
 
 
 def read_estimate(window: Window, model: WindowModel, estimate: gtsam.Values) -> None:

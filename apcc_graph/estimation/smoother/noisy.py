@@ -3,7 +3,7 @@
 
 What a frame adds: besides its vector, every segment tip's pose, tied to its base (the previous
 tip, or the robot's base) through the segment's APCC transform at the frame's vector with the
-model noise ``GraphOptions.model_sigma``
+segment's model noise (``GraphOptions.model_sigma``, by default the robot file's)
 (:func:`~apcc_graph.factors.kinematic.segment_tie_factor`). A new frame's tips start at the
 model's tips moved by the previous frame's departure from the model (the model error changes
 slowly). What a track's rows become: a point per track and gtsam's C++ projection factors on
@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.initial_guess import FrameRows
+from apcc_graph.estimation.model_noise import tie_sigmas
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.pose_points import PosePoints
 from apcc_graph.estimation.projection_tracks import Rows
@@ -48,10 +49,11 @@ class NoisyTracks:
     """Model error as noise: tip poses, ties and points in a smoother's window.
 
     Args:
-        robot, options, settings, bending: the smoother's; ``options.model_sigma`` (position
-            m, rotation rad) is the ties' noise.
+        robot, options, settings, bending: the smoother's.
         window: the smoother's window.
         inlier_sigmas: a row that misses its new point by more (pixel-noise units) stays out.
+        sigmas: per segment, the ties' noise (position m, rotation rad;
+            :func:`~apcc_graph.estimation.model_noise.segment_sigmas`).
     """
 
     name = "model noise"
@@ -61,10 +63,9 @@ class NoisyTracks:
     elimination = staticmethod(elimination_group)  # points, then tips, then frame vectors
 
     def __init__(self, robot: Robot, options: GraphOptions, settings: SmootherOptions,
-                 window: Window, bending: Bending, inlier_sigmas: float) -> None:
-        assert options.model_sigma is not None
-        position, rotation = options.model_sigma
-        self._noise = [rotation] * 3 + [position] * 3
+                 window: Window, bending: Bending, inlier_sigmas: float,
+                 sigmas: tuple[tuple[float, float], ...]) -> None:
+        self._noise = [tie_sigmas(sigmas, j) for j in range(robot.n_segments)]
         self.bending = bending
         self.n_segments = robot.n_segments
         self.points = PosePoints({c: robot.cameras[c].tip_T_cam  # type: ignore[union-attr]
@@ -132,7 +133,7 @@ class NoisyTracks:
             add.variable(tip_key(f, j), gtsam.Pose3(tips[j]), t)
             add.graph.add(segment_tie_factor(frame_key(f), tip_key(f, j),
                                              base if j == 0 else tip_key(f, j - 1),
-                                             self.bending, j, self._noise))
+                                             self.bending, j, self._noise[j]))
 
     def observe(self, add: Additions, f: int, t: float, rows: Rows, marks: None,
                 weights: Mapping[int, FloatArray], verdicts: Mapping[int, NDArray[np.int8]],

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.model_calibration import ModelCalibration
+from apcc_graph.estimation.model_noise import ROBOT, segment_sigmas
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.terms.exact import ExactTerms
 from apcc_graph.estimation.terms.noisy import NoisyTerms
@@ -55,12 +56,18 @@ class MeasurementModel(Protocol):
 def measurement_model(robot: Robot, options: GraphOptions, bending: Bending,
                       calibration_sigmas: tuple[float, float] | None = None,
                       mount_sigmas: tuple[float, float] | None = None) -> MeasurementModel:
-    """The exact model when ``options.model_sigma`` is ``None``, else model error as noise;
-    self-calibration (``calibration_sigmas``, ``mount_sigmas``: :class:`ExactTerms`) needs the
-    exact model, else ValueError."""
-    if options.model_sigma is None:
+    """The exact model when ``options.model_sigma`` names none
+    (:func:`~apcc_graph.estimation.model_noise.segment_sigmas`), else model error as noise.
+    Self-calibration (``calibration_sigmas``, ``mount_sigmas``: :class:`ExactTerms`) fits the
+    model itself, so it runs the exact model whatever the robot file says; with an explicit
+    noise it is a ValueError."""
+    self_calibrating = calibration_sigmas is not None or mount_sigmas is not None
+    if self_calibrating and options.model_sigma == ROBOT:
         return ExactTerms(robot, options, bending, calibration_sigmas, mount_sigmas)
-    if calibration_sigmas is not None or mount_sigmas is not None:
+    sigmas = segment_sigmas(options.model_sigma, robot)
+    if sigmas is None:
+        return ExactTerms(robot, options, bending, calibration_sigmas, mount_sigmas)
+    if self_calibrating:
         raise ValueError("self-calibration (calibrate) needs the exact model: "
                          "GraphOptions.model_sigma = None")
-    return NoisyTerms(robot, options, bending)
+    return NoisyTerms(robot, options, bending, sigmas)

@@ -1,6 +1,8 @@
 """Model error as noise (``docs/estimation.md``, "Model error as noise"): each segment tip's
 pose per frame is a variable, tied to its base (the previous tip, or the robot's base) through
-the segment's APCC transform at the frame vector with the noise ``GraphOptions.model_sigma``
+the segment's APCC transform at the frame vector with the segment's model noise
+(``GraphOptions.model_sigma``; by default the robot file's:
+:mod:`~apcc_graph.estimation.model_noise`)
 (:func:`~apcc_graph.factors.kinematic.segment_tie_factor`); each track's point is a variable
 (weak prior) and each observation a gtsam C++ projection factor on its tip (the mount as the
 sensor offset) and its point. Outliers are decided without the model first
@@ -17,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.graph import observed_cameras, values_from
+from apcc_graph.estimation.model_noise import tie_sigmas
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.robust import gnc_tls_weights
 from apcc_graph.factors.keys import frame_key, point_key, tip_key
@@ -78,15 +81,16 @@ class _Camera:
 
 
 class NoisyTerms:
-    """The batch's terms with model error as noise (module docstring), ``options.model_sigma``
-    (position m, rotation rad) set (:func:`~apcc_graph.estimation.terms.measurement_model`)."""
+    """The batch's terms with model error as noise (module docstring): ``sigmas``, per segment
+    (position m, rotation rad), from ``options.model_sigma`` and the robot
+    (:func:`~apcc_graph.estimation.terms.measurement_model`)."""
 
     calibration = None
 
-    def __init__(self, robot: Robot, options: GraphOptions, bending: Bending) -> None:
+    def __init__(self, robot: Robot, options: GraphOptions, bending: Bending,
+                 sigmas: tuple[tuple[float, float], ...]) -> None:
         self.robot, self.options, self.bending = robot, options, bending
-        position, rotation = options.model_sigma
-        self.tie_sigmas = [rotation] * 3 + [position] * 3
+        self.tie_sigmas = [tie_sigmas(sigmas, j) for j in range(bending.n_segments)]
         self.cameras: list[_Camera] = []
         self.bases = self.tips = np.empty((0, bending.n_segments, 4, 4))
 
@@ -112,7 +116,7 @@ class NoisyTerms:
         out: list[gtsam.NonlinearFactor] = [
             segment_tie_factor(frame_key(f), tip_key(f, j),
                                self.bases[f] if j == 0 else tip_key(f, j - 1), self.bending, j,
-                               self.tie_sigmas)
+                               self.tie_sigmas[j])
             for f in range(len(self.tips)) for j in range(self.bending.n_segments)]
         K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
         prior = gtsam.noiseModel.Isotropic.Sigma(3, POINT_PRIOR_SIGMA)

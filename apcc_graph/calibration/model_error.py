@@ -1,0 +1,124 @@
+"""A segment's departure from its model, told apart from the measurement's noise
+(``docs/estimation.md``, "Model error from the calibration").
+
+After the calibration, each sample's segment end still misses the model's (at the bend fitted
+to that sample) by a residual ``r_i``. Two things make it: the motion capture's noise, new at
+every sample, and the model's error, a function of the robot's shape and motion that persists
+while they do. The first is white, the second is not:
+
+- the residuals are taken as noise alone when their autocorrelation at lags 1 to
+  :data:`LAGS` is what white noise gives (the Ljung-Box statistic ``n sum rho(k)^2`` below the
+  ``1 - WHITE_LEVEL`` quantile of a chi-square with :data:`LAGS` degrees of freedom): then the
+  model's error is zero (a model-exact motion seen by noisy markers);
+- otherwise the model's error is their RMS per component, bias included: every departure the
+  estimator's tie must allow, the markers' noise too (a fraction of a millimetre and of a degree
+  where this was measured, the white part of the variogram ``2 gamma(1) - gamma(2)``, reported
+  beside it; the white part also holds departures that last a sample or two, such as a
+  segment's shape while it is struck, so it is not removed);
+- its correlation time is the lag at which the autocorrelation of the persistent part,
+  ``(var - gamma(k)) / (var - white)`` with ``gamma(k) = E|r_(i+k) - r_i|^2 / 2`` the
+  variogram and ``var`` the centred variance, falls below ``1/e``.
+
+A segment whose departure is below :data:`NEGLIGIBLE` in both position and rotation gets a
+zero model error (the exact model): the calibration of a model-exact motion with the markers'
+noise measures up to 0.1 mm and 0.1 deg, from the parameters it re-fits.
+
+Samples more than :data:`GAP` median intervals apart are not paired (the motion capture lost
+the robot between them).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.stats
+
+from apcc_graph.model.arrays import FloatArray
+from apcc_graph.model.model_error import ModelError
+
+LAGS = 10
+"""Lags of the whiteness test."""
+WHITE_LEVEL = 1e-3
+"""The whiteness test's false-alarm rate: residuals of noise alone are taken for a model error
+this often."""
+NEGLIGIBLE = (2.5e-4, math.radians(0.15))
+"""A departure below both (position m, rotation rad per component) is zero: about a pixel of a
+tip camera (f = 500 px: 0.115 deg a pixel), and above what re-fitting a model-exact motion
+measures (0.1 mm, 0.1 deg)."""
+GAP = 1.5
+"""Two samples further apart than this many median intervals are not neighbours."""
+MAX_LAG_FRACTION = 0.5
+"""The correlation time is looked for up to this fraction of the samples (in lags); a slow
+motion's model error changes slowly (20 s on a 46 s recording of a real robot)."""
+
+
+def _pairs(times: FloatArray, lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(i, i + lag)`` whose samples are ``lag`` steps apart with no gap between."""
+    dt = float(np.median(np.diff(times)))
+    steps_ok = np.diff(times) <= GAP * dt
+    if lag > len(steps_ok):
+        return np.empty(0, dtype=int), np.empty(0, dtype=int)
+    window = np.lib.stride_tricks.sliding_window_view(steps_ok, lag).all(axis=1)
+    first = np.flatnonzero(window)
+    return first, first + lag
+
+
+def _variogram(r: FloatArray, times: FloatArray, lag: int) -> tuple[float, int]:
+    """``gamma(lag)`` per component of ``(N, 3)`` residuals, and the number of pairs."""
+    a, b = _pairs(times, lag)
+    if len(a) == 0:
+        return math.nan, 0
+    return float(np.mean((r[b] - r[a]) ** 2) / 2.0), len(a)
+
+
+def departure(r: FloatArray, times: FloatArray) -> tuple[float, float, float | None]:
+    """Of ``(N, 3)`` residuals sampled at ``times`` (module docstring): the model error's
+    standard deviation per component (0 when the residuals are white), the white part's, and
+    the correlation time (seconds; ``None`` when zero or not reached within half the
+    recording)."""
+    r = np.asarray(r, dtype=float)
+    times = np.asarray(times, dtype=float)
+    if len(r) < 2 * LAGS:
+        return 0.0, 0.0, None
+    total = float(np.mean(r**2))
+    var = float(np.mean((r - r.mean(axis=0)) ** 2))
+    gammas = [_variogram(r, times, lag) for lag in range(1, LAGS + 1)]
+    n = gammas[0][1]
+    if var == 0.0 or n == 0 or not all(math.isfinite(g) for g, _ in gammas):
+        return 0.0, 0.0, None
+    white = min(max(2.0 * gammas[0][0] - gammas[1][0], 0.0), gammas[0][0])
+    q = 3 * n * sum((1.0 - g / var) ** 2 for g, _ in gammas)  # 3 components
+    if q <= scipy.stats.chi2.ppf(1.0 - WHITE_LEVEL, LAGS):
+        return 0.0, math.sqrt(white), None
+    persistent = var - white
+    dt = float(np.median(np.diff(times)))
+    tau = None
+    for lag in range(1, max(2, int(MAX_LAG_FRACTION * len(r)))):
+        gamma, pairs = _variogram(r, times, lag)
+        if pairs and persistent > 0.0 and (var - gamma) / persistent < 1.0 / math.e:
+            tau = lag * dt
+            break
+    return math.sqrt(total), math.sqrt(white), tau
+
+
+def measure_model_error(position: FloatArray, rotation: FloatArray, times: FloatArray,
+                        source: str) -> ModelError:
+    """One segment's :class:`ModelError` from its residuals over a recording.
+
+    Args:
+        position: ``(N, 3)`` the segment end's position residual per sample (metres).
+        rotation: ``(N, 3)`` its rotation residual (radians, a rotation vector).
+        times: ``(N,)`` the samples' times (seconds, increasing).
+        source: what was fitted, for the record.
+    """
+    pos, pos_white, tau_p = departure(position, times)
+    rot, rot_white, tau_r = departure(rotation, times)
+    taus = [t for t in (tau_p, tau_r) if t is not None]
+    how = (f"backbone calibration of {source}, {len(times)} samples: the segment end's RMS "
+           f"residual per component where it is not white (white part {pos_white * 1e3:.2f} "
+           f"mm, {math.degrees(rot_white):.2f} deg)")
+    if pos < NEGLIGIBLE[0] and rot < NEGLIGIBLE[1]:
+        return ModelError(0.0, 0.0, None, f"{how}: {pos * 1e3:.2f} mm, "
+                          f"{math.degrees(rot):.2f} deg, negligible")
+    return ModelError(pos, rot, min(taus) if taus else None, how)

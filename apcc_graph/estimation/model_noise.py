@@ -1,0 +1,109 @@
+"""Which model noise an estimator uses: the robot file's by default
+(``docs/estimation.md``, "Model error from the calibration").
+
+``GraphOptions.model_sigma`` names it:
+
+- ``"robot"`` (:data:`ROBOT`, the default): each segment's measured departure from its model,
+  as the calibration wrote it into ``robot.toml``
+  (:attr:`~apcc_graph.model.segment.Segment.model_error`); the exact model when no segment has
+  one or every one is zero (a model-exact robot, or a file without them);
+- ``None``: the exact model, whatever the robot file says;
+- ``(position m, rotation rad)``: the same noise for every segment;
+- one such pair per segment.
+
+:func:`segment_sigmas` turns it into what the two measurement models' choosers need
+(:func:`~apcc_graph.estimation.terms.measurement_model`,
+:func:`~apcc_graph.estimation.smoother.measurement.window_model`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from apcc_graph.model.robot import Robot
+
+ROBOT = "robot"
+"""``GraphOptions.model_sigma``: the robot file's model errors."""
+FLOOR = (1e-4, math.radians(0.05))
+"""The least model noise (position m, rotation rad) of a segment whose measured error is zero
+or missing while another segment's is not: a tie with no noise would be a hard constraint,
+which the model-noise graph does not linearise well."""
+
+Pair = tuple[float, float]
+ModelSigma = str | Pair | tuple[Pair, ...] | None
+"""What ``GraphOptions.model_sigma`` holds (module docstring)."""
+
+
+def normalised(value: object) -> ModelSigma:
+    """``value`` checked and made plain floats; ValueError naming ``GraphOptions.model_sigma``
+    and what is expected otherwise."""
+    if value is None:
+        return None
+    expected = (f"GraphOptions.model_sigma = {value!r}: expected {ROBOT!r} (the robot file's "
+                "model errors), None (the exact model), (position m, rotation rad) or one such "
+                "pair per segment, every value finite and > 0")
+    if isinstance(value, str):
+        if value == ROBOT:
+            return ROBOT
+        raise ValueError(expected)
+    if hasattr(value, "tolist"):  # a numpy array
+        value = value.tolist()
+    if not isinstance(value, Sequence):
+        raise ValueError(expected)
+
+    def pair(item: object) -> Pair:
+        if isinstance(item, str) or not isinstance(item, Sequence) or len(item) != 2:
+            raise ValueError(expected)
+        try:
+            out = (float(item[0]), float(item[1]))
+        except (TypeError, ValueError):
+            raise ValueError(expected) from None
+        if not all(math.isfinite(v) and v > 0.0 for v in out):
+            raise ValueError(expected)
+        return out
+
+    if len(value) == 2 and not any(isinstance(v, Sequence) for v in value):
+        return pair(value)
+    if len(value) == 0:
+        raise ValueError(expected)
+    return tuple(pair(item) for item in value)
+
+
+def segment_sigmas(model_sigma: ModelSigma, robot: Robot) -> tuple[Pair, ...] | None:
+    """Per segment, ``(position m, rotation rad)`` of the model noise, or ``None``: the exact
+    model (module docstring).
+
+    Raises:
+        ValueError: one pair per segment for a robot of another number of segments.
+    """
+    if model_sigma is None:
+        return None
+    if model_sigma == ROBOT:
+        errors = [seg.model_error for seg in robot.segments]
+        if all(e is None or e.is_zero for e in errors):
+            return None
+        return tuple((FLOOR if e is None else (max(e.position, FLOOR[0]),
+                                                max(e.rotation, FLOOR[1])))
+                     for e in errors)
+    assert not isinstance(model_sigma, str)
+    if isinstance(model_sigma[0], float):
+        return (model_sigma,) * robot.n_segments  # type: ignore[return-value]
+    if len(model_sigma) != robot.n_segments:
+        raise ValueError(f"GraphOptions.model_sigma gives {len(model_sigma)} segments' model "
+                         f"noise for a robot of {robot.n_segments} segments")
+    return tuple(model_sigma)  # type: ignore[arg-type]
+
+
+def tie_sigmas(sigmas: tuple[Pair, ...], segment: int) -> list[float]:
+    """The kinematic tie's six sigmas of ``segment`` (rotation, then translation)."""
+    position, rotation = sigmas[segment]
+    return [rotation] * 3 + [position] * 3
+
+
+def describe(sigmas: tuple[Pair, ...] | None) -> str:
+    """``"the exact model"`` or ``"model error as noise: 1.81 mm / 0.93 deg, ..."``."""
+    if sigmas is None:
+        return "the exact model"
+    return "model error as noise: " + ", ".join(
+        f"{p * 1e3:.2f} mm / {math.degrees(r):.2f} deg" for p, r in sigmas)
