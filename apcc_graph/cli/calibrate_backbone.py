@@ -70,9 +70,15 @@ def format_backbone_calibration(cal: BackboneCalibration, robot: Robot, source: 
                                                                       strict=True)]
         lines.append(f"  {arc:.4f} m: rot ({', '.join(parts[:3])}) deg, t ({', '.join(parts[3:])})"
                      " mm")
+    if cal.model_errors:
+        lines.append("model error per segment, each component of the segment end's departure "
+                     "from the calibrated model that is not the markers' white noise (the "
+                     "batch and the smoother take it as noise by default; zero: the exact model):")
+        for i, error in enumerate(cal.model_errors):
+            lines.append(f"  {i + 1}: {error.describe()}")
     for warning in cal.warnings:
         lines.append(f"warning: {warning}")
     if output is not None:
         lines.append(f"wrote {output} (the robot of {robot.n_segments} segments with these "
-                     "k and delta_max, its cameras, and the marker offsets)")
+                     "k, delta_max and model errors, its cameras, and the marker offsets)")
     return "\n".join(lines)

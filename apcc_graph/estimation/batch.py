@@ -28,8 +28,10 @@ from apcc_graph.estimation.batch_solve import BatchReport, ProjectionSolution, p
 from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
 from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
+from apcc_graph.estimation.model_noise import segment_sigmas
 from apcc_graph.estimation.options import INITS, GraphOptions, Robustness
 from apcc_graph.estimation.result import Estimate
+from apcc_graph.estimation.rotation_start import rotation_start
 from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.model.arrays import FloatArray
@@ -53,6 +55,12 @@ def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
                                   robustness=robustness, progress=progress,
                                   spatial=bending.is_free)
         return bending.vector(first.thetas, first.psis), first.status
+    if init == "auto":  # the rotations where the model is approximate, else the chain
+        init = "chain" if segment_sigmas(options.model_sigma, sequence.robot) is None \
+            else "rotations"
+    if initial is None and init == "rotations":
+        x = rotation_start(sequence, x0, bending, options)
+        return x, np.full((sequence.n_frames, sequence.n_segments), "rotations", dtype="<U24")
     if initial is None:
         x, status, _ = chain_vectors(sequence, bending, x0, options.threshold_px,
                                      progress=progress)
@@ -73,7 +81,7 @@ def batch_estimate(
     max_iterations: int = 30,
     marginals: bool = True,
     progress: bool = False,
-    init: str = "chain",
+    init: str = "auto",
     robustness: Robustness | None = None,
     calibrate: bool = False,
     calibration_sigmas: tuple[float, float] | None = (0.05, math.radians(5.0)),
@@ -96,9 +104,12 @@ def batch_estimate(
         marginals: compute marginal standard deviations (otherwise NaN).
         progress: show progress bars.
         init: where the initial values come from when ``initial`` is not given:
-            ``"chain"`` (default: the paper's chained estimate, fast; it drifts, and
-            the graduated non-convexity of the outlier decisions brings the batch back from
-            there) or ``"smoother"`` (the fixed-lag smoother: closer, slower).
+            ``"auto"`` (default: ``"rotations"`` with model error as noise, ``"chain"``
+            with the exact model), ``"chain"`` (the paper's chained estimate, fast; it
+            drifts, and the graduated non-convexity of the outlier decisions brings the
+            batch back from there), ``"smoother"`` (the fixed-lag smoother: closer, slower)
+            or ``"rotations"`` (:mod:`~apcc_graph.estimation.rotation_start`: the vectors
+            whose tip rotations fit the cameras' own, chained without the model).
         robustness: how outliers are decided (:class:`Robustness`: the inlier threshold and
             the GNC continuation).
         calibrate: self-calibration: estimate each segment's k and

@@ -139,7 +139,7 @@ class ChainOptions:
                              "probability strictly between 0 and 1")
 
 
-INITS = ("chain", "smoother")
+INITS = ("auto", "chain", "smoother", "rotations")
 """Where the batch's initial values come from."""
 
 
@@ -148,10 +148,15 @@ class BatchOptions:
     """The batch optimiser (``method="batch"``).
 
     Attributes:
-        init: where the initial values come from: ``"chain"`` (the paper's chained estimate,
+        init: where the initial values come from: ``"auto"`` (the default: ``"rotations"``
+            with model error as noise, ``"chain"`` with the exact model), ``"chain"`` (the
+            paper's chained estimate,
             fast; it drifts, and the graduated non-convexity of the outlier decisions brings
-            the batch back from there) or ``"smoother"`` (the fixed-lag smoother: closer,
-            slower).
+            the batch back from there), ``"smoother"`` (the fixed-lag smoother: closer,
+            slower) or ``"rotations"`` (the vectors whose tip rotations fit the cameras'
+            own, chained from frame to frame without the model:
+            :mod:`~apcc_graph.estimation.rotation_start`; the basin the images point to where
+            the robot departs from its model).
         max_iterations: Levenberg-Marquardt iterations per stage.
         marginals: compute marginal standard deviations (otherwise NaN).
         calibrate: self-calibration: estimate each segment's k and delta_max jointly with the
@@ -164,7 +169,7 @@ class BatchOptions:
             ``None`` holds the mounts.
     """
 
-    init: str = "chain"
+    init: str = "auto"
     max_iterations: int = 30
     marginals: bool = True
     calibrate: bool = False
