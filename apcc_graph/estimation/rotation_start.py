@@ -17,8 +17,11 @@ tens of millimetres away. What limits it: a tip camera also translates as it tur
 rotation-only model ignores the parallax, about 8% of the turn against a room 1-2 m away
 (measured on a struck real segment turning 10-16 deg a frame: 0.8-1.5 deg per frame pair),
 which the chain accumulates; OpenCV's essential matrix from the same 50-150 points did no
-better. A camera pair with fewer than :data:`MIN_PAIRS` shared tracks (or no
-consensus) holds that camera's rotation; its rows then count for nothing until it sees again.
+better. A camera whose pair into a frame was not measured (fewer than :data:`MIN_PAIRS` shared
+tracks, or no consensus) counts for nothing in that frame, and its chain starts again from the
+model's camera rotation at the vector fitted to the frame before: after a blind spell its
+relative rotations are right again, but what it turned while blind is lost (the full graph,
+through the translations, is what can tell it).
 """
 
 from __future__ import annotations
@@ -46,38 +49,49 @@ STEPS = 8
 """Gauss-Newton steps per frame."""
 
 
-def chained_rotations(sequence: Sequence, start_rotations: dict[int, FloatArray],
-                      options: GraphOptions | None = None, seed: int = 0
-                      ) -> dict[int, tuple[FloatArray, np.ndarray]]:
-    """Camera -> ``(F, 3, 3)`` its ``world_R_cam`` chained from ``start_rotations[cam]`` (its
-    rotation at frame 0) by the frame-to-frame RANSAC rotations, and ``(F,)`` whether that
-    frame's rotation was measured (False once a pair failed, until a pair succeeds again)."""
+def frame_rotations(sequence: Sequence, options: GraphOptions | None = None, seed: int = 0
+                    ) -> dict[int, tuple[FloatArray, np.ndarray]]:
+    """Camera -> ``(F, 3, 3)`` the rotation ``R`` with ``a ~ R b`` from each frame ``f - 1``
+    (bearings ``a``) to ``f`` (``b``; row 0 the identity), and ``(F,)`` whether it was
+    measured (:data:`MIN_PAIRS` shared tracks and as many inliers)."""
     rng = np.random.default_rng(seed)
     out = {}
     for obs in observed_cameras(sequence, options or GraphOptions()):
-        cam = obs.camera
         bearings = np.column_stack([obs.xy, np.ones(len(obs.xy))])
         bearings /= np.linalg.norm(bearings, axis=1, keepdims=True)
         pair = np.flatnonzero((obs.tracks[1:] == obs.tracks[:-1])
                               & (obs.frames[1:] == obs.frames[:-1] + 1))
         later = obs.frames[pair + 1]
-        R = np.empty((sequence.n_frames, 3, 3))
-        R[0] = start_rotations[cam]
-        known = np.zeros(sequence.n_frames, dtype=bool)
-        known[0] = True
         order = np.argsort(later, kind="stable")
         pair, later = pair[order], later[order]
         bounds = np.searchsorted(later, np.arange(sequence.n_frames + 1))
+        rel = np.tile(np.eye(3), (sequence.n_frames, 1, 1))
+        measured = np.zeros(sequence.n_frames, dtype=bool)
         for f in range(1, sequence.n_frames):
             rows = pair[bounds[f]:bounds[f + 1]]
-            rel = None
-            if len(rows) >= MIN_PAIRS:
-                rel, inliers = relative_rotation(bearings[rows], bearings[rows + 1], THRESHOLD,
-                                                 rng)
-                if rel is not None and inliers.sum() < MIN_PAIRS:
-                    rel = None
-            R[f] = R[f - 1] if rel is None else R[f - 1] @ rel
-            known[f] = rel is not None
+            if len(rows) < MIN_PAIRS:
+                continue
+            R, inliers = relative_rotation(bearings[rows], bearings[rows + 1], THRESHOLD, rng)
+            if R is not None and inliers.sum() >= MIN_PAIRS:
+                rel[f], measured[f] = R, True
+        out[obs.camera] = (rel, measured)
+    return out
+
+
+def chained_rotations(sequence: Sequence, start_rotations: dict[int, FloatArray],
+                      options: GraphOptions | None = None, seed: int = 0
+                      ) -> dict[int, tuple[FloatArray, np.ndarray]]:
+    """Camera -> ``(F, 3, 3)`` its ``world_R_cam`` chained from ``start_rotations[cam]`` (its
+    rotation at frame 0) by :func:`frame_rotations` (held where a pair was not measured), and
+    ``(F,)`` whether each frame's pair was measured (frame 0: True)."""
+    out = {}
+    for cam, (rel, measured) in frame_rotations(sequence, options, seed).items():
+        R = np.empty_like(rel)
+        R[0] = start_rotations[cam]
+        for f in range(1, len(rel)):
+            R[f] = R[f - 1] @ rel[f]
+        known = measured.copy()
+        known[0] = True
         out[cam] = (R, known)
     return out
 
@@ -85,11 +99,15 @@ def chained_rotations(sequence: Sequence, start_rotations: dict[int, FloatArray]
 def rotation_start(sequence: Sequence, x0: FloatArray, bending: Bending,
                    options: GraphOptions | None = None, seed: int = 0) -> FloatArray:
     """``(F, dim)`` frame vectors of ``bending`` whose tip rotations fit the cameras' chained
-    rotations, from ``x0`` (the start's vector, at frame 0) (module docstring)."""
+    rotations, from ``x0`` (the start's vector, at frame 0) (module docstring). A camera whose
+    pair into frame ``f`` was measured has the target ``R_cam(f - 1) R``: its chained rotation
+    at ``f - 1`` when that one was measured too, else (it was blind, or its tracks were all
+    new) the model's at the vector fitted to ``f - 1``, from which its chain starts again."""
     robot = sequence.robot
     x0 = np.asarray(x0, dtype=float)
     base = np.eye(4) if sequence.world_T_base is None else np.asarray(sequence.world_T_base)
-    mounts = {c: robot.cameras[c].tip_T_cam[:3, :3] for c in robot.camera_segments}  # type: ignore[union-attr]
+    mounts = {c: robot.cameras[c].tip_T_cam[:3, :3]  # type: ignore[union-attr]
+              for c in robot.camera_segments}
 
     def tip_rotations(x: FloatArray) -> FloatArray:
         T, out = base, np.empty((robot.n_segments, 3, 3))
@@ -98,15 +116,23 @@ def rotation_start(sequence: Sequence, x0: FloatArray, bending: Bending,
             out[j] = T[:3, :3]
         return out
 
+    pairs = frame_rotations(sequence, options, seed)
     first = tip_rotations(x0)
-    chained = chained_rotations(sequence, {c: first[c] @ mounts[c] for c in mounts}, options,
-                                seed)
-    cams = sorted(chained)
+    chain = {c: first[c] @ mounts[c] for c in pairs}
+    alive = dict.fromkeys(pairs, True)
     x = np.empty((sequence.n_frames, bending.dim))
     x[0] = x0
     for f in range(1, sequence.n_frames):
-        seen = [c for c in cams if chained[c][1][f]]
-        targets = {c: chained[c][0][f] @ mounts[c].T for c in seen}
+        targets = {}
+        for c, (rel, measured) in pairs.items():
+            if not measured[f]:
+                alive[c] = False
+                continue
+            if not alive[c]:  # its chain starts again from the fit of the frame before
+                chain[c] = tip_rotations(x[f - 1])[c] @ mounts[c]
+                alive[c] = True
+            chain[c] = chain[c] @ rel[f]
+            targets[c] = chain[c] @ mounts[c].T
         x[f] = _fit(tip_rotations, targets, x[f - 1])
     return x
 

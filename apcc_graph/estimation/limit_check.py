@@ -1,0 +1,47 @@
+"""No confident answer at a joint limit (``docs/estimation.md``, "What the estimators say when
+the data go wrong").
+
+A bend the estimator leaves at (or beyond) its joint limit ``theta_max`` is held there by the
+soft limit prior, not by the images: the images pulled it further than the robot can bend, so
+the model does not explain them there (a wrong basin, or a robot that departs from its model).
+The prior's curvature then makes the marginal sigma small (0.11 deg at a 120 deg limit, for a
+real robot's segment estimated 108 deg from its measured bend). :func:`at_the_limits` marks
+those bends ``"at-limit"``, reports their sigma as the whole range ``theta_max`` (the bend is
+somewhere in it, as far as the estimate can tell) and warns once, naming the segments.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+
+from apcc_graph.estimation.result import Estimate
+
+AT_LIMIT = "at-limit"
+"""The status of a bend within the margin of its joint limit."""
+
+
+class LimitWarning(UserWarning):
+    """Bends ended at their joint limits: their sigmas say nothing."""
+
+
+def at_the_limits(result: Estimate, margin: float) -> Estimate:
+    """``result`` with every bend within ``margin`` (radians) of its joint limit marked
+    (module docstring); the same object when none is."""
+    limits = np.array([seg.theta_max for seg in result.robot.segments])
+    at = np.abs(result.thetas) >= limits - margin
+    if not at.any():
+        return result
+    sigmas = np.where(at, np.broadcast_to(limits, at.shape), result.sigmas)
+    status = np.where(at, AT_LIMIT, result.status)
+    counts = at.sum(axis=0)
+    named = ", ".join(f"segment {j + 1} in {n} of {len(at)} frames"
+                      for j, n in enumerate(counts) if n)
+    warnings.warn(f"{result.method}: bends at their joint limits ({named}): the images pull "
+                  "them further than the robot bends, so the model does not explain them "
+                  "there (a wrong start or basin, or a robot that leaves its model); their "
+                  "sigmas are reported as the whole range and their status is "
+                  f"{AT_LIMIT!r}", LimitWarning, stacklevel=3)
+    return replace(result, sigmas=sigmas, status=status)
