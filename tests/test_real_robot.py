@@ -603,7 +603,9 @@ def test_bench_real_scores_each_stretch_and_pools_them(
 
 
 def test_bench_real_pools_the_honesty_of_every_stretch() -> None:
-    from apcc_graph.bench.real_robot import RealRow, _Honesty, _pooled_honesty
+    from apcc_graph.bench.real_honesty import Honesty as _Honesty
+    from apcc_graph.bench.real_honesty import pooled_honesty as _pooled_honesty
+    from apcc_graph.bench.real_robot import RealRow
 
     a = _Honesty(np.array([[1.0, 4.0], [3.0, np.nan]]), np.array([10.0, 0.0]),
                  np.array([100.0, 50.0]), True)

@@ -37,16 +37,18 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from apcc_graph.bench.real_honesty import Honesty, honesty, pooled_honesty
 from apcc_graph.calibration.backbone_fit import BackboneCalibration, fit_backbone
 from apcc_graph.calibration.model_exact import model_exact_poses
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.model_fit import ModelFitWarning
 from apcc_graph.estimation.model_noise import ROBOT, describe, segment_sigmas
-from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.options import BatchOptions, GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import FaultOptions, SmootherOptions, WindowOptions
 from apcc_graph.estimation.window import RestartWarning
+from apcc_graph.evaluation.noise_bound import model_noise_tip_bound
 from apcc_graph.evaluation.tip_bound import tip_bound
 from apcc_graph.evaluation.tip_floor import (
     TipErrors,
@@ -61,6 +63,7 @@ from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.replay import measured_ends, motion_stretches, replay_motion
+from apcc_graph.simulation.simulator import Simulation
 
 RECORDINGS = ("slow_free_space", "impulse_2")
 PEERS = {"smoother-qr": SmootherOptions(window=WindowOptions(factorization="QR")),
@@ -70,10 +73,11 @@ by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad)."""
 EXACT = ("batch-exact", "smoother-exact")
 """The batch and the smoother with the exact model forced (``--exact-model``)."""
 METHODS = ("chain", "batch", "smoother", "batch-exact", "smoother-exact", "noise",
-           "smoother-noise", "noise@floor", *PEERS)
+           "smoother-noise", "noise@floor", "batch-chain", *PEERS)
 """Every method the bench knows. ``batch`` and ``smoother`` are the defaults: the robot file
 from the calibration, with its model errors; ``noise`` and ``smoother-noise`` take the bench's
-``model_sigma`` instead. The :data:`PEERS` are not in the default list."""
+``model_sigma`` instead; ``batch-chain`` is ``batch`` started from the chain rather than from
+the cameras' rotations. The :data:`PEERS` are not in the default list."""
 SMOOTHERS = ("smoother", "smoother-exact", "smoother-noise", *PEERS)
 """The methods whose yardstick on the model-exact motion is the lag bound."""
 MODEL_SIGMA = (1e-3, math.radians(0.5))
@@ -151,8 +155,9 @@ def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, n
         return estimate(seq, method="smoother", spatial=True, theta0=floor.thetas[0],
                         psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px,
                         settings=PEERS.get(method), graph=graph)
-    return estimate(seq, method="batch" if method in ("noise", "batch-exact") else method,
-                    spatial=True,
+    settings = BatchOptions(init="chain") if method == "batch-chain" else None
+    return estimate(seq, method="batch" if method in ("noise", "batch-exact", "batch-chain")
+                    else method, settings=settings, spatial=True,
                     theta0=floor.thetas[0], psi0=floor.psis[0], theta0_sigma=start_sigma,
                     noise_px=noise_px, graph=graph)
 
@@ -179,6 +184,27 @@ def _model_exact_robot(poses: BackbonePoses, cal: BackboneCalibration, robot: Ro
                  list(model.cameras))
 
 
+def _yardsticks(real: Simulation, exact: Simulation, floor: TipFloor,
+                methods: tuple[str, ...], noise_px: float, start_sigma: float
+                ) -> dict[tuple[str, str], TipErrors]:
+    """One stretch's yardsticks: on the measured motion the floor, the rotation floor and,
+    where the calibration measured a model error, the bound with it as noise; on the
+    model-exact motion the bounds (module docstring)."""
+    model = real.sequence.robot
+    out = {("real", "floor"): floor.errors,
+           ("real", "rot-floor"): rotation_floor(model, real.sequence.truth_tips).errors}
+    noise = segment_sigmas(ROBOT, model)
+    if noise is not None:  # what the images and the model with its error tell
+        bending = Bending.free(model.segments)
+        bound = model_noise_tip_bound(real, bending.vector(floor.thetas, floor.psis), bending,
+                                      noise, noise_px, start_sigma, BOUND_STEP)
+        out["real", "noise bound"] = TipErrors(bound.sigmas, np.full_like(bound.sigmas, np.nan))
+    for method, lag in _bounds(exact.sequence, methods).items():
+        bound = tip_bound(exact, noise_px, start_sigma, lag, BOUND_STEP, spatial=True)
+        out["model-exact", method] = TipErrors(bound.sigmas, np.full_like(bound.sigmas, np.nan))
+    return out
+
+
 def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers: float,
                     seed: int, start_sigma: float, methods: tuple[str, ...],
                     model_sigma: tuple[float, float] = MODEL_SIGMA) -> list[RealRow]:
@@ -194,24 +220,21 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
     kept = [k for k, (a, b, _) in enumerate(motion_stretches(ends)) if b - a >= MIN_STRETCH]
     errors: dict[tuple[str, str], list[TipErrors]] = {}
     seconds: dict[tuple[str, str], float] = {}
-    honesty: dict[tuple[str, str], list[_Honesty]] = {}
+    honest: dict[tuple[str, str], list[Honesty]] = {}
     restarts: dict[tuple[str, str], int] = {}
     models = {version: describe(segment_sigmas(ROBOT, r))
               for version, r in (("real", model), ("model-exact", exact_model))}
     turns = []
     for k in kept:
-        real = replay_motion(model, ends, stretch=k, **options).simulation.sequence
+        real_sim = replay_motion(model, ends, stretch=k, **options).simulation
+        real = real_sim.sequence
         floor = tip_floor(model, real.truth_tips)
         exact_sim = replay_motion(exact_model, ends, model_tips=floor.tips, bends=floor.bends,
                                   stretch=k, **options).simulation
         exact = exact_sim.sequence
-        for method, lag in _bounds(exact, methods).items():
-            bound = tip_bound(exact_sim, noise_px, start_sigma, lag, BOUND_STEP, spatial=True)
-            errors.setdefault(("model-exact", method), []).append(
-                TipErrors(bound.sigmas, np.full_like(bound.sigmas, np.nan)))
-        errors.setdefault(("real", "floor"), []).append(floor.errors)
-        errors.setdefault(("real", "rot-floor"), []).append(
-            rotation_floor(model, real.truth_tips).errors)
+        for key, found in _yardsticks(real_sim, exact_sim, floor, methods, noise_px,
+                                      start_sigma).items():
+            errors.setdefault(key, []).append(found)
         turns.append(_turns(real.truth_tips))
         for version, seq in (("real", real), ("model-exact", exact)):
             for method in methods:
@@ -226,14 +249,14 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
                     issubclass(w.category, RestartWarning) for w in caught)
                 errors.setdefault((version, method), []).append(
                     tip_errors(model.forward(est.thetas, est.psis), seq.truth_tips))
-                honesty.setdefault((version, method), []).append(_honesty(est, floor))
+                honest.setdefault((version, method), []).append(honesty(est, floor))
                 seconds[version, method] = (seconds.get((version, method), 0.0)
                                             + time.perf_counter() - start)
     turn = np.percentile(np.concatenate(turns), 95, axis=0) if turns else None
     rows = []
     for (version, method), errs in errors.items():
         pooled = _pooled(errs)
-        nees, misfit, warned = _pooled_honesty(honesty.get((version, method), []),
+        nees, misfit, warned = pooled_honesty(honest.get((version, method), []),
                                                len(pooled.rms_position))
         rows.append(RealRow(name, version, method, pooled.rms_position, pooled.rms_tangent,
                             seconds.get((version, method), 0.0), len(pooled.position), turn,
@@ -244,7 +267,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
 
 def _yardstick(rows: list[RealRow], row: RealRow) -> np.ndarray | None:
     """``row``'s yardstick among ``rows`` (module docstring), ``None`` for a yardstick."""
-    if row.method in ("floor", "bound", "lag bound"):
+    if row.method in ("floor", "bound", "lag bound", "noise bound"):
         return None
     if row.version != "model-exact":
         name = "floor"
@@ -253,47 +276,6 @@ def _yardstick(rows: list[RealRow], row: RealRow) -> np.ndarray | None:
     found = [r.position for r in rows if r.recording == row.recording and r.method == name
              and (r.version == row.version or name == "floor")]
     return found[0] if found else None
-
-
-@dataclass(frozen=True)
-class _Honesty:
-    """One stretch's ``(F, S)`` normalised squared errors, and its residual test."""
-
-    nees: np.ndarray
-    rejected: np.ndarray  # (S,) model-free inliers the model rejects (NaN: no test)
-    accepted: np.ndarray  # (S,) model-free inliers
-    warned: bool
-
-
-def _honesty(est: Estimate, floor: TipFloor) -> _Honesty:
-    """Whether an estimate's sigmas cover its errors against the floor's bends, and what its
-    residual test said."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        nees = (est.errors(floor.thetas, floor.psis) / est.bend_sigmas()) ** 2
-    S = est.thetas.shape[1]
-    rejected, accepted = np.full(S, np.nan), np.zeros(S)
-    fit = est.model_fit
-    if fit is not None:
-        for cam in fit.cameras:
-            rejected[cam.camera], accepted[cam.camera] = cam.rejected, cam.accepted
-    return _Honesty(nees, rejected, accepted, fit is not None and not fit.explained)
-
-
-def _pooled_honesty(parts: list[_Honesty], n_segments: int
-                    ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Mean ``(e / sigma)^2`` per segment over every frame, the share rejected per camera over
-    every stretch, and how many stretches warned."""
-    if not parts:
-        nan = np.full(n_segments, np.nan)
-        return nan, nan, 0
-    nees = np.concatenate([p.nees for p in parts])
-    finite = np.isfinite(nees)
-    with np.errstate(invalid="ignore"):
-        mean = np.where(finite.any(axis=0), np.nansum(np.where(finite, nees, 0.0), axis=0)
-                        / np.maximum(finite.sum(axis=0), 1), np.nan)
-        share = (np.sum([p.rejected for p in parts], axis=0)
-                 / np.sum([p.accepted for p in parts], axis=0))
-    return mean, share, sum(p.warned for p in parts)
 
 
 def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers: float = 0.1,
@@ -354,6 +336,10 @@ def format_real_bench(rows: list[RealRow]) -> str:
                  "tips (zero on the model-exact motion)")
     lines.append("rot-floor: the model's tips at the bends whose tip rotations best fit the "
                  "measured ones (what tip cameras measure well): the camera-based yardstick")
+    if any(r.method == "noise bound" for r in rows):
+        lines.append("noise bound: the Cramer-Rao bound of the segment ends on the measured "
+                     f"motion (every {BOUND_STEP}th frame) with the calibration's model error "
+                     "as noise: what the images and the approximate model together tell")
     if any(r.method == "bound" for r in rows):
         lines.append("bound, lag bound: the Cramer-Rao bound of the tips on the model-exact "
                      f"motion (every {BOUND_STEP}th frame), of the whole stretch and of a "

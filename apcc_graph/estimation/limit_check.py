@@ -5,7 +5,7 @@ A bend the estimator leaves at (or beyond) its joint limit ``theta_max`` is held
 soft limit prior, not by the images: the images pulled it further than the robot can bend, so
 the model does not explain them there (a wrong basin, or a robot that departs from its model).
 The prior's curvature then makes the marginal sigma small (0.11 deg at a 120 deg limit, for a
-real robot's segment estimated 108 deg from its measured bend). :func:`at_the_limits` marks
+real robot's segment whose measured bend was about 11 deg). :func:`at_the_limits` marks
 those bends ``"at-limit"``, reports their sigma as the whole range ``theta_max`` (the bend is
 somewhere in it, as far as the estimate can tell) and warns once, naming the segments.
 """

@@ -26,7 +26,10 @@ through the translations, is what can tell it).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from apcc_graph.estimation.graph import observed_cameras
@@ -159,3 +162,41 @@ def _fit(tip_rotations: object, targets: dict[int, FloatArray], previous: FloatA
         if np.max(np.abs(step)) < 1e-9:
             break
     return x
+
+
+def rotation_guess(prediction: FloatArray, bending: Bending, base: FloatArray | None,
+                   before: Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]],
+                   rows: Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]],
+                   cameras_before: Mapping[int, FloatArray], mounts: Mapping[int, FloatArray],
+                   rng: np.random.Generator) -> tuple[FloatArray, int]:
+    """A stream's next frame from the rotations: each camera's ``world_R_cam`` in the frame
+    before (``cameras_before``; the smoother's estimate) turned by its RANSAC rotation between
+    the two frames' rows (``camera -> (track ids, normalised points, whitening)``), and the
+    vector near ``prediction`` whose tip rotations fit those (``mounts``: camera ->
+    ``tip_R_cam``). Returns the vector and how many cameras told it."""
+    base4 = np.eye(4) if base is None else np.asarray(base, dtype=float)
+
+    def tip_rotations(x: FloatArray) -> FloatArray:
+        T, out = base4, np.empty((bending.n_segments, 3, 3))
+        for j in range(bending.n_segments):
+            T = T @ bending.transform(x, j)
+            out[j] = T[:3, :3]
+        return out
+
+    targets = {}
+    for cam, (ids, xy, _) in rows.items():
+        if cam not in before or cam not in cameras_before:
+            continue
+        ids0, xy0, _ = before[cam]
+        shared, i0, i1 = np.intersect1d(ids0, ids, return_indices=True)
+        if len(shared) < MIN_PAIRS:
+            continue
+        a = np.column_stack([xy0[i0], np.ones(len(i0))])
+        b = np.column_stack([xy[i1], np.ones(len(i1))])
+        a /= np.linalg.norm(a, axis=1, keepdims=True)
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        R, inliers = relative_rotation(a, b, THRESHOLD, rng)
+        if R is None or inliers.sum() < MIN_PAIRS:
+            continue
+        targets[cam] = cameras_before[cam] @ R @ mounts[cam].T
+    return _fit(tip_rotations, targets, np.asarray(prediction, dtype=float)), len(targets)

@@ -44,6 +44,7 @@ from apcc_graph.estimation.initial_guess import predict, refine, row_inliers
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import Rows, frame_rows
 from apcc_graph.estimation.rotation_gate import gate_weights, judge_frame
+from apcc_graph.estimation.rotation_start import rotation_guess
 from apcc_graph.estimation.smoother.fixed_lag import WindowSolver
 from apcc_graph.estimation.smoother.measurement import WindowModel, read_estimate, window_model
 from apcc_graph.estimation.smoother.restarts import Recovery
@@ -126,6 +127,8 @@ class FixedLagSmoother:
                                   self._window, self._solver, self._model)
         self._previous: tuple[Rows, FloatArray | None] = ({}, None)  # last frame's rows, base
         self._rng = np.random.default_rng(0)
+        self._mounts = {c: robot.cameras[c].tip_T_cam[:3, :3]  # type: ignore[union-attr]
+                        for c in robot.camera_segments}
         self._first: FirstFrames | None = FirstFrames(  # for the start search, if need be
             Reacquisition(robot, o, self.inlier_sigmas, b, self.theta0, o.theta0_sigma),
             self.spatial, robustness)
@@ -289,7 +292,11 @@ class FixedLagSmoother:
             counts[cam] = counts.get(cam, 0) + int(mask.sum())
         accepted: dict[int, NDArray[np.int64]] = {}
         before, before_base = self._previous
-        if any(counts.get(cam, 0) < self.settings.tracks.front_end_rows for cam in rows):
+        turned = self._model.camera_rotations(f - 1)
+        if turned:  # model error as noise: from the cameras' rotations, not the exact model
+            prediction = rotation_guess(prediction, bending, base, before, rows, turned,
+                                        self._mounts, self._rng)[0]
+        elif any(counts.get(cam, 0) < self.settings.tracks.front_end_rows for cam in rows):
             prediction, accepted = front_end_guess(
                 previous, prediction, self.robot, bending, before_base, base, before, rows,
                 self.options.threshold_px, self._rng)

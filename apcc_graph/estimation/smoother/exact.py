@@ -188,3 +188,8 @@ class ExactTracks:
     def base(self, g: int) -> FloatArray | None:
         """Frame ``g``'s base pose (``None``: identity), for frames in the window."""
         return self.tracks.bases.get(g)
+
+    def camera_rotations(self, g: int) -> dict[int, FloatArray]:
+        """None: the exact model's two-frame front end guesses a new frame (it solves the
+        generalized epipolar constraint through the model, which holds here)."""
+        return {}

@@ -109,6 +109,11 @@ class WindowModel(Protocol):
     def base(self, g: int) -> FloatArray | None:
         """Frame ``g``'s base pose, for frames in the window."""
 
+    def camera_rotations(self, g: int) -> dict[int, FloatArray]:
+        """Camera -> its ``world_R_cam`` as frame ``g``'s estimate holds it, for a new frame's
+        guess from the rotations (:func:`~apcc_graph.estimation.rotation_start.
+        rotation_guess`); empty: the two-frame front end guesses instead."""
+
 
 def window_model(robot: Robot, options: GraphOptions, settings: SmootherOptions,
                  window: Window, bending: Bending, inlier_sigmas: float) -> WindowModel:

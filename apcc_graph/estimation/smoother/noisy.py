@@ -71,6 +71,8 @@ class NoisyTracks:
         self.points = PosePoints({c: robot.cameras[c].tip_T_cam  # type: ignore[union-attr]
                                   for c in robot.camera_segments}, settings.window.lag,
                                  inlier_sigmas)
+        self._mounts = {c: robot.cameras[c].tip_T_cam[:3, :3]  # type: ignore[union-attr]
+                        for c in robot.camera_segments}
         self._tips: dict[int, FloatArray] = {}  # frame -> (S, 4, 4), frames in the window
         self._models: dict[int, FloatArray] = {}  # frame -> the model's tips at its estimate
         self._bases: dict[int, FloatArray] = {}
@@ -177,6 +179,14 @@ class NoisyTracks:
     def base(self, g: int) -> FloatArray | None:
         """Frame ``g``'s base pose, for frames in the window."""
         return self._bases.get(g)
+
+    def camera_rotations(self, g: int) -> dict[int, FloatArray]:
+        """Camera -> ``world_R_cam`` of frame ``g`` from its estimated tip poses (the model's
+        departure included); empty for a frame not in the window."""
+        tips = self._tips.get(g)
+        if tips is None:
+            return {}
+        return {c: tips[c][:3, :3] @ mount for c, mount in self._mounts.items()}
 
     def finish(self, add: Additions, t: float) -> None:
         """Make the points of every held track with two kept rows (the end of the stream)."""
