@@ -27,6 +27,7 @@ through the translations, is what can tell it).
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,16 +109,9 @@ def rotation_start(sequence: Sequence, x0: FloatArray, bending: Bending,
     new) the model's at the vector fitted to ``f - 1``, from which its chain starts again."""
     robot = sequence.robot
     x0 = np.asarray(x0, dtype=float)
-    base = np.eye(4) if sequence.world_T_base is None else np.asarray(sequence.world_T_base)
+    tip_rotations = partial(_tip_rotations, bending, sequence.world_T_base)
     mounts = {c: robot.cameras[c].tip_T_cam[:3, :3]  # type: ignore[union-attr]
               for c in robot.camera_segments}
-
-    def tip_rotations(x: FloatArray) -> FloatArray:
-        T, out = base, np.empty((robot.n_segments, 3, 3))
-        for j in range(robot.n_segments):
-            T = T @ bending.transform(x, j)
-            out[j] = T[:3, :3]
-        return out
 
     pairs = frame_rotations(sequence, options, seed)
     first = tip_rotations(x0)
@@ -138,6 +132,16 @@ def rotation_start(sequence: Sequence, x0: FloatArray, bending: Bending,
             targets[c] = chain[c] @ mounts[c].T
         x[f] = _fit(tip_rotations, targets, x[f - 1])
     return x
+
+
+def _tip_rotations(bending: Bending, base: FloatArray | None, x: FloatArray) -> FloatArray:
+    """``(S, 3, 3)`` every segment tip's ``world_R_tip`` at frame vector ``x``."""
+    T = np.eye(4) if base is None else np.asarray(base, dtype=float)
+    out = np.empty((bending.n_segments, 3, 3))
+    for j in range(bending.n_segments):
+        T = T @ bending.transform(x, j)
+        out[j] = T[:3, :3]
+    return out
 
 
 def _fit(tip_rotations: object, targets: dict[int, FloatArray], previous: FloatArray
@@ -174,14 +178,7 @@ def rotation_guess(prediction: FloatArray, bending: Bending, base: FloatArray | 
     the two frames' rows (``camera -> (track ids, normalised points, whitening)``), and the
     vector near ``prediction`` whose tip rotations fit those (``mounts``: camera ->
     ``tip_R_cam``). Returns the vector and how many cameras told it."""
-    base4 = np.eye(4) if base is None else np.asarray(base, dtype=float)
-
-    def tip_rotations(x: FloatArray) -> FloatArray:
-        T, out = base4, np.empty((bending.n_segments, 3, 3))
-        for j in range(bending.n_segments):
-            T = T @ bending.transform(x, j)
-            out[j] = T[:3, :3]
-        return out
+    tip_rotations = partial(_tip_rotations, bending, base)
 
     targets = {}
     for cam, (ids, xy, _) in rows.items():
