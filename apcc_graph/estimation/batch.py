@@ -55,9 +55,9 @@ def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
                                   robustness=robustness, progress=progress,
                                   spatial=bending.is_free)
         return bending.vector(first.thetas, first.psis), first.status
-    if init == "auto":  # the rotations where the model is approximate, else the chain
-        init = "chain" if segment_sigmas(options.model_sigma, sequence.robot) is None \
-            else "rotations"
+    if initial is None and init == "auto" and segment_sigmas(options.model_sigma,
+                                                             sequence.robot) is not None:
+        init = "rotations"  # the model is approximate (start_vectors' choice)
     if initial is None and init == "rotations":
         x = rotation_start(sequence, x0, bending, options)
         return x, np.full((sequence.n_frames, sequence.n_segments), "rotations", dtype="<U24")

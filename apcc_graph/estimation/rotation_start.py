@@ -33,7 +33,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.graph import observed_cameras
+from apcc_graph.estimation.model_noise import segment_sigmas
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.frontend.rotation_pairs import relative_rotation
 from apcc_graph.model.arrays import FloatArray
@@ -132,6 +134,17 @@ def rotation_start(sequence: Sequence, x0: FloatArray, bending: Bending,
             targets[c] = chain[c] @ mounts[c].T
         x[f] = _fit(tip_rotations, targets, x[f - 1])
     return x
+
+
+def start_vectors(sequence: Sequence, x0: FloatArray, bending: Bending,
+                  options: GraphOptions) -> FloatArray:
+    """``(F, dim)`` a batch's initial vectors from ``x0``: the cameras' rotations
+    (:func:`rotation_start`) where ``options`` take the model's error as noise, else the
+    paper's chain (the exact model holds, and its two-frame solver tells the translations
+    too)."""
+    if segment_sigmas(options.model_sigma, sequence.robot) is None:
+        return chain_vectors(sequence, bending, x0, options.threshold_px)[0]
+    return rotation_start(sequence, x0, bending, options)
 
 
 def _tip_rotations(bending: Bending, base: FloatArray | None, x: FloatArray) -> FloatArray:
