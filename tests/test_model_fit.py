@@ -24,7 +24,7 @@ from apcc_graph.estimation.model_fit import (
     check_model_fit,
     expected_share,
 )
-from apcc_graph.estimation.options import Robustness
+from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.evaluation.tip_floor import TipFloor
 from apcc_graph.io import load_robot
 from apcc_graph.io.sequence_folder import save_sequence
@@ -113,7 +113,8 @@ def test_loud_on_the_real_robots_motion_quiet_on_its_model_exact_version() -> No
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             est = estimate(seq, method="batch", spatial=True, theta0=floor.thetas[0],
-                           psi0=floor.psis[0], theta0_sigma=math.radians(2.0))
+                           psi0=floor.psis[0], theta0_sigma=math.radians(2.0),
+                           graph=GraphOptions(model_sigma=None))  # the exact model
         said = [w for w in caught if issubclass(w.category, ModelFitWarning)]
         assert est.model_fit is not None
         verdicts[exact] = (est.model_fit, said, est)

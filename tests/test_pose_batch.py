@@ -71,7 +71,7 @@ def test_small_model_noise_is_as_good_as_the_exact_batch_on_model_exact_motion()
     model, seq, truth, floor = _replay(30, exact=True)
     common = dict(theta0=floor.thetas[0], psi0=floor.psis[0], spatial=True,
                   theta0_sigma=math.radians(2.0), method="batch")
-    exact = estimate(seq, **common)
+    exact = estimate(seq, graph=GraphOptions(model_sigma=None), **common)
     noise = estimate(seq, graph=GraphOptions(model_sigma=(1e-5, math.radians(1e-3))), **common)
     # Measured: tips exact 1.5 / 4.0 mm, small model noise 0.44 / 0.99 mm; bend errors
     # 0.14 / 0.16 deg RMS against reported sigmas of 0.16 / 0.14 deg.

@@ -37,8 +37,7 @@ def _run(seq, floor, model_sigma):  # noqa: ANN001, ANN202
         warnings.simplefilter("ignore")
         return estimate(seq, method="smoother", theta0=floor.thetas[0], psi0=floor.psis[0],
                         spatial=True, theta0_sigma=START_SIGMA,
-                        graph=None if model_sigma is None else GraphOptions(
-                            model_sigma=model_sigma))
+                        graph=GraphOptions(model_sigma=model_sigma))  # None: the exact model
 
 
 def test_model_noise_keeps_the_smoother_near_the_real_tips_where_the_exact_one_is_driven_away(
@@ -50,12 +49,15 @@ def test_model_noise_keeps_the_smoother_near_the_real_tips_where_the_exact_one_i
     assert noise[0] < 6e-3 and noise[1] < 15e-3, noise
 
 
-def test_model_noise_costs_the_smoother_nothing_on_model_exact_motion() -> None:
+def test_model_noise_costs_the_smoother_little_on_model_exact_motion() -> None:
+    """Measured: exact smoother 2.9 / 8.0 mm; with model noise 2.1 / 5.6 mm while it guessed
+    each new frame by the exact model's two-frame solver, 4.2 / 11.3 mm since it guesses from
+    the cameras' rotations (whose parallax the exact solver does not have; on the real
+    impulse_2 replay the same change took the smoother from 26 / 72 to 17 / 66 mm)."""
     model, seq, truth, floor = fast_stretch_replay(30, exact=True)
     exact, noise = (_tip_rms(model, _run(seq, floor, s), truth) for s in (None, MODEL_SIGMA))
-    # Measured: exact smoother 2.9 / 8.0 mm, with model noise 2.1 / 5.6 mm.
     assert np.all(noise < 1.5 * exact), (noise, exact)
-    assert np.all(noise < 10e-3), noise
+    assert np.all(noise < 15e-3), noise
 
 
 def test_a_recording_shorter_than_the_lag_gives_the_batch_s_tips() -> None:
@@ -92,7 +94,8 @@ def test_the_smoother_with_model_noise_is_chosen_by_the_model_sigma_and_is_repro
     noise = GraphOptions(model_sigma=MODEL_SIGMA)
     first, again = (smoother_estimate(seq, floor.thetas[0], noise, psi0=floor.psis[0],
                                       spatial=True) for _ in range(2))
-    smoother_estimate(seq, floor.thetas[0], GraphOptions(), psi0=floor.psis[0], spatial=True)
+    smoother_estimate(seq, floor.thetas[0], GraphOptions(model_sigma=None), psi0=floor.psis[0],
+                      spatial=True)
     assert kinds == ["model noise", "model noise", "exact"]
     assert first.thetas.tobytes() == again.thetas.tobytes()
     assert first.sigmas.tobytes() == again.sigmas.tobytes()

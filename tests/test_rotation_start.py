@@ -19,7 +19,6 @@ from apcc_graph.model.parameterisation import Bending
 from apcc_graph.simulation import faults
 from apcc_graph.simulation.simulator import simulate
 
-
 FAR = (20.0, 20.0, 15.0)
 """A room ten times the benchmarks' (half sizes, metres): the cameras' translation shows no
 parallax there, so the rotation-only model between frames holds."""

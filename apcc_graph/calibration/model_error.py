@@ -35,17 +35,13 @@ import numpy as np
 import scipy.stats
 
 from apcc_graph.model.arrays import FloatArray
-from apcc_graph.model.model_error import ModelError
+from apcc_graph.model.model_error import NEGLIGIBLE, ModelError
 
 LAGS = 10
 """Lags of the whiteness test."""
 WHITE_LEVEL = 1e-3
 """The whiteness test's false-alarm rate: residuals of noise alone are taken for a model error
 this often."""
-NEGLIGIBLE = (2.5e-4, math.radians(0.15))
-"""A departure below both (position m, rotation rad per component) is zero: about a pixel of a
-tip camera (f = 500 px: 0.115 deg a pixel), and above what re-fitting a model-exact motion
-measures (0.1 mm, 0.1 deg)."""
 GAP = 1.5
 """Two samples further apart than this many median intervals are not neighbours."""
 MAX_LAG_FRACTION = 0.5

@@ -28,7 +28,7 @@ from apcc_graph.estimation.batch_solve import BatchReport, ProjectionSolution, p
 from apcc_graph.estimation.bends import bending_estimate, parameterisation, start_vector
 from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
-from apcc_graph.estimation.model_noise import segment_sigmas
+from apcc_graph.estimation.model_noise import approximate, segment_sigmas
 from apcc_graph.estimation.options import INITS, GraphOptions, Robustness
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.rotation_start import rotation_start
@@ -55,9 +55,9 @@ def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
                                   robustness=robustness, progress=progress,
                                   spatial=bending.is_free)
         return bending.vector(first.thetas, first.psis), first.status
-    if initial is None and init == "auto" and segment_sigmas(options.model_sigma,
-                                                             sequence.robot) is not None:
-        init = "rotations"  # the model is approximate (start_vectors' choice)
+    if initial is None and init == "auto" and approximate(segment_sigmas(options.model_sigma,
+                                                                        sequence.robot)):
+        init = "rotations"  # the model is materially off (start_vectors' choice)
     if initial is None and init == "rotations":
         x = rotation_start(sequence, x0, bending, options)
         return x, np.full((sequence.n_frames, sequence.n_segments), "rotations", dtype="<U24")
@@ -104,12 +104,13 @@ def batch_estimate(
         marginals: compute marginal standard deviations (otherwise NaN).
         progress: show progress bars.
         init: where the initial values come from when ``initial`` is not given:
-            ``"auto"`` (default: ``"rotations"`` with model error as noise, ``"chain"``
-            with the exact model), ``"chain"`` (the paper's chained estimate, fast; it
-            drifts, and the graduated non-convexity of the outlier decisions brings the
-            batch back from there), ``"smoother"`` (the fixed-lag smoother: closer, slower)
-            or ``"rotations"`` (:mod:`~apcc_graph.estimation.rotation_start`: the vectors
-            whose tip rotations fit the cameras' own, chained without the model).
+            ``"auto"`` (default: ``"rotations"`` with a model noise of at least 0.25 mm or
+            0.15 deg on some segment, else ``"chain"``), ``"chain"`` (the paper's chained
+            estimate, fast; it drifts, and the graduated non-convexity of the outlier
+            decisions brings the batch back from there), ``"smoother"`` (the fixed-lag
+            smoother: closer, slower) or ``"rotations"``
+            (:mod:`~apcc_graph.estimation.rotation_start`: the vectors whose tip rotations fit
+            the cameras' own, chained without the model).
         robustness: how outliers are decided (:class:`Robustness`: the inlier threshold and
             the GNC continuation).
         calibrate: self-calibration: estimate each segment's k and

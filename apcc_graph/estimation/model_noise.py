@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+from apcc_graph.model.model_error import NEGLIGIBLE
 from apcc_graph.model.robot import Robot
 
 ROBOT = "robot"
@@ -93,6 +94,15 @@ def segment_sigmas(model_sigma: ModelSigma, robot: Robot) -> tuple[Pair, ...] | 
         raise ValueError(f"GraphOptions.model_sigma gives {len(model_sigma)} segments' model "
                          f"noise for a robot of {robot.n_segments} segments")
     return tuple(model_sigma)  # type: ignore[arg-type]
+
+
+def approximate(sigmas: tuple[Pair, ...] | None) -> bool:
+    """Whether a model noise says the model is materially off: some segment's at least the
+    negligible size (:data:`~apcc_graph.model.model_error.NEGLIGIBLE`) in position or rotation.
+    The batch then starts from the cameras' rotations rather than from the exact chain
+    (:func:`~apcc_graph.estimation.rotation_start.start_vectors`)."""
+    return sigmas is not None and any(p >= NEGLIGIBLE[0] or r >= NEGLIGIBLE[1]
+                                      for p, r in sigmas)
 
 
 def tie_sigmas(sigmas: tuple[Pair, ...], segment: int) -> list[float]:

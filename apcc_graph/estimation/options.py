@@ -149,7 +149,8 @@ class BatchOptions:
 
     Attributes:
         init: where the initial values come from: ``"auto"`` (the default: ``"rotations"``
-            with model error as noise, ``"chain"`` with the exact model), ``"chain"`` (the
+            with a model noise of at least 0.25 mm or 0.15 deg on some segment, else
+            ``"chain"``), ``"chain"`` (the
             paper's chained estimate,
             fast; it drifts, and the graduated non-convexity of the outlier decisions brings
             the batch back from there), ``"smoother"`` (the fixed-lag smoother: closer,

@@ -15,6 +15,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+NEGLIGIBLE = (2.5e-4, math.radians(0.15))
+"""A departure below both (position m, rotation rad per component) is zero: about a pixel of a
+tip camera (f = 500 px: 0.115 deg a pixel), and above what re-fitting a model-exact motion
+measures (0.1 mm, 0.1 deg)."""
 
 @dataclass(frozen=True)
 class ModelError:
