@@ -57,7 +57,7 @@ def _initial_vectors(sequence: Sequence, bending: Bending, x0: FloatArray,
         return bending.vector(first.thetas, first.psis), first.status
     if initial is None and init == "auto" and approximate(segment_sigmas(options.model_sigma,
                                                                         sequence.robot)):
-        init = "rotations"  # the model is materially off (start_vectors' choice)
+        init = "rotations"  # the model is materially off
     if initial is None and init == "rotations":
         x = rotation_start(sequence, x0, bending, options)
         return x, np.full((sequence.n_frames, sequence.n_segments), "rotations", dtype="<U24")

@@ -100,7 +100,10 @@ def approximate(sigmas: tuple[Pair, ...] | None) -> bool:
     """Whether a model noise says the model is materially off: some segment's at least the
     negligible size (:data:`~apcc_graph.model.model_error.NEGLIGIBLE`) in position or rotation.
     The batch then starts from the cameras' rotations rather than from the exact chain
-    (:func:`~apcc_graph.estimation.rotation_start.start_vectors`)."""
+    (``BatchOptions.init = "auto"``): on 30 frames of a model-exact replay, a model noise of
+    0.01 mm / 0.001 deg ended 0.44 / 0.99 mm off from the chain and 1.8 / 5.9 mm from the
+    rotations, whose parallax the graph did not undo; on the real impulse recording the
+    rotations won on every stretch."""
     return sigmas is not None and any(p >= NEGLIGIBLE[0] or r >= NEGLIGIBLE[1]
                                       for p, r in sigmas)
 

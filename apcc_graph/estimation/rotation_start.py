@@ -33,9 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.graph import observed_cameras
-from apcc_graph.estimation.model_noise import approximate, segment_sigmas
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.frontend.rotation_pairs import relative_rotation
 from apcc_graph.model.arrays import FloatArray
@@ -134,19 +132,6 @@ def rotation_start(sequence: Sequence, x0: FloatArray, bending: Bending,
             targets[c] = chain[c] @ mounts[c].T
         x[f] = _fit(tip_rotations, targets, x[f - 1])
     return x
-
-
-def start_vectors(sequence: Sequence, x0: FloatArray, bending: Bending,
-                  options: GraphOptions) -> FloatArray:
-    """``(F, dim)`` a batch's initial vectors from ``x0``: the cameras' rotations
-    (:func:`rotation_start`) where ``options`` say the model is materially off
-    (:func:`~apcc_graph.estimation.model_noise.approximate`), else the paper's chain: the
-    model holds, and its two-frame solver tells the translations too (on 30 frames of a
-    model-exact replay, a model noise of 0.01 mm / 0.001 deg ended 0.44 / 0.99 mm off from
-    the chain and 1.8 / 5.9 mm from the rotations, whose parallax the graph did not undo)."""
-    if not approximate(segment_sigmas(options.model_sigma, sequence.robot)):
-        return chain_vectors(sequence, bending, x0, options.threshold_px)[0]
-    return rotation_start(sequence, x0, bending, options)
 
 
 def _tip_rotations(bending: Bending, base: FloatArray | None, x: FloatArray) -> FloatArray:
