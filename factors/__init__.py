@@ -27,4 +27,6 @@ Modules:
   variables tied to the angles.
 - :mod:`apcc_graph.factors.kinematic`: the APCC kinematic factor in pose space (base Pose3, angle,
   tip Pose3), residual in the tangent space of Pose3.
+- :mod:`apcc_graph.factors.drifting_tie`: consecutive frames' kinematic ties of a segment
+  correlated in time (a model error that drifts, a Gauss-Markov process).
 """

@@ -188,8 +188,8 @@ def test_the_batch_and_the_smoother_take_the_robot_files_noise() -> None:
     bending = Bending.fixed(robot.segments)
     terms = measurement_model(robot, GraphOptions(), bending)
     assert isinstance(terms, NoisyTerms)
-    assert [t[0] for t in terms.tie_sigmas] == pytest.approx([e.rotation for e in errors])
-    assert [t[-1] for t in terms.tie_sigmas] == pytest.approx([e.position for e in errors])
+    assert [t[0] for t in terms.ties.noise] == pytest.approx([e.rotation for e in errors])
+    assert [t[-1] for t in terms.ties.noise] == pytest.approx([e.position for e in errors])
     assert isinstance(measurement_model(plain, GraphOptions(), bending), ExactTerms)
     assert isinstance(measurement_model(robot, GraphOptions(model_sigma=None), bending),
                       ExactTerms)

@@ -108,15 +108,46 @@ def approximate(sigmas: tuple[Pair, ...] | None) -> bool:
                                       for p, r in sigmas)
 
 
+def correlation_normalised(value: object) -> str | float:
+    """``GraphOptions.model_correlation`` checked: :data:`ROBOT` or seconds (finite, >= 0);
+    ValueError naming the field and what is expected otherwise."""
+    if value == ROBOT:
+        return ROBOT
+    try:
+        tau = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        tau = math.nan
+    if isinstance(value, str | bool) or not (math.isfinite(tau) and tau >= 0.0):
+        raise ValueError(f"GraphOptions.model_correlation = {value!r}: expected {ROBOT!r} (the "
+                         "robot file's correlation times) or seconds >= 0 (0: an independent "
+                         "model error per frame)")
+    return tau
+
+
+def segment_correlations(model_correlation: str | float, robot: Robot) -> tuple[float, ...]:
+    """Per segment, how long its model error takes to change (seconds; 0: independent per
+    frame, the plain ties): ``model_correlation`` for every segment, or with :data:`ROBOT` the
+    robot file's measured correlation time (0 where the file has none)
+    (:mod:`apcc_graph.factors.drifting_tie`)."""
+    if model_correlation != ROBOT:
+        return (float(model_correlation),) * robot.n_segments
+    return tuple(0.0 if seg.model_error is None or seg.model_error.correlation_time is None
+                 else seg.model_error.correlation_time for seg in robot.segments)
+
+
 def tie_sigmas(sigmas: tuple[Pair, ...], segment: int) -> list[float]:
     """The kinematic tie's six sigmas of ``segment`` (rotation, then translation)."""
     position, rotation = sigmas[segment]
     return [rotation] * 3 + [position] * 3
 
 
-def describe(sigmas: tuple[Pair, ...] | None) -> str:
-    """``"the exact model"`` or ``"model error as noise: 1.81 mm / 0.93 deg, ..."``."""
+def describe(sigmas: tuple[Pair, ...] | None, correlations: Sequence[float] = ()) -> str:
+    """``"the exact model"`` or ``"model error as noise: 1.81 mm / 0.93 deg, ..."``, followed
+    by ``", drifting over 20 s, 0.06 s"`` where some segment's ``correlations`` is not 0."""
     if sigmas is None:
         return "the exact model"
-    return "model error as noise: " + ", ".join(
+    text = "model error as noise: " + ", ".join(
         f"{p * 1e3:.2f} mm / {math.degrees(r):.2f} deg" for p, r in sigmas)
+    if any(correlations):
+        text += ", drifting over " + ", ".join(f"{tau:.2g} s" for tau in correlations)
+    return text

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 from apcc_graph.estimation.image_motion import STILL_TICK
 from apcc_graph.estimation.model_calibration import MOUNT_SIGMAS
-from apcc_graph.estimation.model_noise import ROBOT, ModelSigma, normalised
+from apcc_graph.estimation.model_noise import ROBOT, ModelSigma, correlation_normalised, normalised
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,11 @@ class GraphOptions:
             ``(position in metres, rotation in radians)``: that noise for every segment; or
             one such pair per segment (:mod:`apcc_graph.estimation.model_noise`). The batch
             and the smoother; the chain has the exact model (it refuses an explicit noise).
+        model_correlation: how long a segment's model error takes to change, in seconds
+            (docs/estimation.md, "A model error that drifts"): ``"robot"`` (default): the
+            correlation time the calibration wrote into the robot file, per segment (0 where
+            it has none); a number: that for every segment; ``0``: an independent model error
+            per frame. Only with model error as noise.
     """
 
     threshold_px: float = 1.0
@@ -64,9 +69,12 @@ class GraphOptions:
     max_track_frames: int | None = 150
     still_tick: float | None = STILL_TICK
     model_sigma: ModelSigma = ROBOT
+    model_correlation: str | float = ROBOT
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "model_sigma", normalised(self.model_sigma))
+        object.__setattr__(self, "model_correlation",
+                           correlation_normalised(self.model_correlation))
         for name in ("threshold_px", "theta0_sigma", "limit_sigma"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):

@@ -21,7 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.initial_guess import FrameRows
-from apcc_graph.estimation.model_noise import tie_sigmas
+from apcc_graph.estimation.model_noise import segment_correlations
+from apcc_graph.estimation.model_ties import ModelTies
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.pose_points import PosePoints
 from apcc_graph.estimation.projection_tracks import Rows
@@ -30,7 +31,6 @@ from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.terms.noisy import forward_tips
 from apcc_graph.estimation.window import Window
 from apcc_graph.factors.keys import elimination_group, frame_key, tip_key
-from apcc_graph.factors.kinematic import segment_tie_factor
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
@@ -65,7 +65,8 @@ class NoisyTracks:
     def __init__(self, robot: Robot, options: GraphOptions, settings: SmootherOptions,
                  window: Window, bending: Bending, inlier_sigmas: float,
                  sigmas: tuple[tuple[float, float], ...]) -> None:
-        self._noise = [tie_sigmas(sigmas, j) for j in range(robot.n_segments)]
+        self._ties = ModelTies(bending, sigmas,
+                               segment_correlations(options.model_correlation, robot))
         self.bending = bending
         self.n_segments = robot.n_segments
         self.points = PosePoints({c: robot.cameras[c].tip_T_cam  # type: ignore[union-attr]
@@ -76,6 +77,7 @@ class NoisyTracks:
         self._tips: dict[int, FloatArray] = {}  # frame -> (S, 4, 4), frames in the window
         self._models: dict[int, FloatArray] = {}  # frame -> the model's tips at its estimate
         self._bases: dict[int, FloatArray] = {}
+        self._times: dict[int, float] = {}
 
     @property
     def committed(self) -> int:
@@ -107,7 +109,7 @@ class NoisyTracks:
     def retire(self, leaving: list[int], first_kept: int) -> None:
         """Frames ``leaving`` left the window."""
         for g in leaving:
-            for held in (self._tips, self._models, self._bases):
+            for held in (self._tips, self._models, self._bases, self._times):
                 held.pop(g, None)
 
     def associate(self, rows: Rows) -> None:
@@ -124,18 +126,21 @@ class NoisyTracks:
 
     def enter(self, add: Additions, f: int, t: float, x: FloatArray,
               base: FloatArray | None) -> None:
-        """Frame ``f``'s tip poses (module docstring: their start) and their ties."""
+        """Frame ``f``'s tip poses (module docstring: their start) and their ties (each a
+        transition from frame ``f - 1``, when it is in the window, where the model error
+        drifts: :mod:`~apcc_graph.estimation.model_ties`)."""
         base = np.eye(4) if base is None else np.asarray(base, dtype=float)
         model = forward_tips(self.bending, x[None], base[None])[0]
         tips = model.copy()
         if f - 1 in self._tips:  # the previous frame's departure from the model
             tips = model @ np.linalg.inv(self._models[f - 1]) @ self._tips[f - 1]
-        self._tips[f], self._models[f], self._bases[f] = tips, model, base
+        previous = ((f - 1, self._times[f - 1], self._bases[f - 1]) if f - 1 in self._times
+                    else None)
+        self._tips[f], self._models[f], self._bases[f], self._times[f] = tips, model, base, t
         for j in range(self.n_segments):
             add.variable(tip_key(f, j), gtsam.Pose3(tips[j]), t)
-            add.graph.add(segment_tie_factor(frame_key(f), tip_key(f, j),
-                                             base if j == 0 else tip_key(f, j - 1),
-                                             self.bending, j, self._noise[j]))
+        for factor in self._ties.frame(f, t, base, previous):
+            add.graph.add(factor)
 
     def observe(self, add: Additions, f: int, t: float, rows: Rows, marks: None,
                 weights: Mapping[int, FloatArray], verdicts: Mapping[int, NDArray[np.int8]],
@@ -168,7 +173,7 @@ class NoisyTracks:
     def reset(self, keep: int | None = None, base: FloatArray | None = None) -> None:
         """Forget every point, held row and tip (a new window)."""
         self.points.reset()
-        for held in (self._tips, self._models, self._bases):
+        for held in (self._tips, self._models, self._bases, self._times):
             held.clear()
 
     def restart_frame(self, add: Additions, f: int, t: float, x: FloatArray,

@@ -19,11 +19,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.graph import observed_cameras, values_from
-from apcc_graph.estimation.model_noise import tie_sigmas
+from apcc_graph.estimation.model_noise import segment_correlations
+from apcc_graph.estimation.model_ties import ModelTies
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.robust import gnc_tls_weights
-from apcc_graph.factors.keys import frame_key, point_key, tip_key
-from apcc_graph.factors.kinematic import segment_tie_factor
+from apcc_graph.factors.keys import point_key, tip_key
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.factors.triangulation import robust_triangulate
 from apcc_graph.frontend.rotation_pairs import pair_inliers
@@ -90,15 +90,18 @@ class NoisyTerms:
     def __init__(self, robot: Robot, options: GraphOptions, bending: Bending,
                  sigmas: tuple[tuple[float, float], ...]) -> None:
         self.robot, self.options, self.bending = robot, options, bending
-        self.tie_sigmas = [tie_sigmas(sigmas, j) for j in range(bending.n_segments)]
+        self.ties = ModelTies(bending, sigmas,
+                              segment_correlations(options.model_correlation, robot))
         self.cameras: list[_Camera] = []
         self.bases = self.tips = np.empty((0, bending.n_segments, 4, 4))
+        self.times = np.empty(0)
 
     def start(self, sequence: Sequence, x: FloatArray, robustness: Robustness) -> list[float]:
         """The first decisions from the images alone, the points triangulated with them at the
         model's tips at ``x``; a truncated stage (``[inf]``; no GNC schedule is used)."""
         base = np.eye(4) if sequence.world_T_base is None else sequence.world_T_base
         self.bases = np.broadcast_to(base, (sequence.n_frames, 4, 4))
+        self.times = np.asarray(sequence.timestamps, dtype=float)
         self.tips = forward_tips(self.bending, np.asarray(x, dtype=float), self.bases)
         self.cameras = []
         for obs in observed_cameras(sequence, self.options):
@@ -111,13 +114,13 @@ class NoisyTerms:
         return [math.inf]
 
     def factors(self) -> list[gtsam.NonlinearFactor]:
-        """Every frame's segment ties, then each camera's inlier observations (C++ projection
-        factors) and the weak priors of their points."""
-        out: list[gtsam.NonlinearFactor] = [
-            segment_tie_factor(frame_key(f), tip_key(f, j),
-                               self.bases[f] if j == 0 else tip_key(f, j - 1), self.bending, j,
-                               self.tie_sigmas[j])
-            for f in range(len(self.tips)) for j in range(self.bending.n_segments)]
+        """Every frame's segment ties (each a transition from the frame before where the model
+        error drifts: :mod:`~apcc_graph.estimation.model_ties`), then each camera's inlier
+        observations (C++ projection factors) and the weak priors of their points."""
+        out: list[gtsam.NonlinearFactor] = []
+        for f in range(len(self.tips)):
+            previous = None if f == 0 else (f - 1, float(self.times[f - 1]), self.bases[f - 1])
+            out += self.ties.frame(f, float(self.times[f]), self.bases[f], previous)
         K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
         prior = gtsam.noiseModel.Isotropic.Sigma(3, POINT_PRIOR_SIGMA)
         for c in self.cameras:
