@@ -43,7 +43,12 @@ from apcc_graph.calibration.model_exact import model_exact_poses
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.model_fit import ModelFitWarning
-from apcc_graph.estimation.model_noise import ROBOT, describe, segment_sigmas
+from apcc_graph.estimation.model_noise import (
+    ROBOT,
+    describe,
+    segment_correlations,
+    segment_sigmas,
+)
 from apcc_graph.estimation.options import BatchOptions, GraphOptions
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.smoother_options import FaultOptions, SmootherOptions, WindowOptions
@@ -72,13 +77,16 @@ PEERS = {"smoother-qr": SmootherOptions(window=WindowOptions(factorization="QR")
 by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad)."""
 EXACT = ("batch-exact", "smoother-exact")
 """The batch and the smoother with the exact model forced (``--exact-model``)."""
+WHITE = ("batch-white", "smoother-white")
+"""The batch and the smoother with the robot file's model error independent per frame
+(``GraphOptions.model_correlation = 0``) instead of drifting with its correlation time."""
 METHODS = ("chain", "batch", "smoother", "batch-exact", "smoother-exact", "noise",
-           "smoother-noise", "noise@floor", "batch-chain", *PEERS)
+           "smoother-noise", "noise@floor", "batch-chain", *WHITE, *PEERS)
 """Every method the bench knows. ``batch`` and ``smoother`` are the defaults: the robot file
 from the calibration, with its model errors; ``noise`` and ``smoother-noise`` take the bench's
 ``model_sigma`` instead; ``batch-chain`` is ``batch`` started from the chain rather than from
 the cameras' rotations. The :data:`PEERS` are not in the default list."""
-SMOOTHERS = ("smoother", "smoother-exact", "smoother-noise", *PEERS)
+SMOOTHERS = ("smoother", "smoother-exact", "smoother-noise", "smoother-white", *PEERS)
 """The methods whose yardstick on the model-exact motion is the lag bound."""
 MODEL_SIGMA = (1e-3, math.radians(0.5))
 """The benchmark's model noise (position m, rotation rad) for ``noise`` and ``noise@floor``."""
@@ -148,18 +156,19 @@ def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, n
                                                    theta0_sigma=start_sigma,
                                                    model_sigma=model_sigma))
     graph = (GraphOptions(model_sigma=model_sigma) if method in ("noise", "smoother-noise")
-             else GraphOptions(model_sigma=None) if method in EXACT else None)
-    if method == "smoother-exact":
+             else GraphOptions(model_sigma=None) if method in EXACT
+             else GraphOptions(model_correlation=0.0) if method in WHITE else None)
+    if method in ("smoother-exact", "smoother-white"):
         method = "smoother"
     if method in SMOOTHERS and method != "smoother":
         return estimate(seq, method="smoother", spatial=True, theta0=floor.thetas[0],
                         psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px,
                         settings=PEERS.get(method), graph=graph)
     settings = BatchOptions(init="chain") if method == "batch-chain" else None
-    return estimate(seq, method="batch" if method in ("noise", "batch-exact", "batch-chain")
-                    else method, settings=settings, spatial=True,
-                    theta0=floor.thetas[0], psi0=floor.psis[0], theta0_sigma=start_sigma,
-                    noise_px=noise_px, graph=graph)
+    batches = ("noise", "batch-exact", "batch-chain", "batch-white")
+    return estimate(seq, method="batch" if method in batches else method,
+                    settings=settings, spatial=True, theta0=floor.thetas[0],
+                    psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px, graph=graph)
 
 
 def _bounds(seq: Sequence, methods: tuple[str, ...]) -> dict[str, int | None]:
@@ -222,7 +231,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
     seconds: dict[tuple[str, str], float] = {}
     honest: dict[tuple[str, str], list[Honesty]] = {}
     restarts: dict[tuple[str, str], int] = {}
-    models = {version: describe(segment_sigmas(ROBOT, r))
+    models = {version: describe(segment_sigmas(ROBOT, r), segment_correlations(ROBOT, r))
               for version, r in (("real", model), ("model-exact", exact_model))}
     turns = []
     for k in kept:
