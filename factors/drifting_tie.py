@@ -3,19 +3,21 @@
 A real segment is only approximately APCC; its tip departs from the model's by
 ``E = world_T_tip^-1 . world_T_base . base_T_tip(x)`` (the kinematic tie's residual
 ``r = Logmap(E)``: :func:`~apcc_graph.factors.kinematic.segment_tie_residual`; radians then
-metres, in the tip's frame). That departure is a smooth function of the bend, so it changes
-little from one frame to the next. Modelled as a first-order Gauss-Markov process per component
-(an Ornstein-Uhlenbeck process: steady-state standard deviation ``sigma``, correlation time
-``tau``), the ties of frames ``f`` and ``g`` (``g`` after ``f`` by ``dt`` seconds) are tied by
-the process's transition::
+metres, in the tip's frame). That departure is a smooth function of the robot's shape, so it
+changes little between two frames whose bends are close. Modelled as a first-order
+Gauss-Markov process per component along the path of the frame vectors (an Ornstein-Uhlenbeck
+process: steady-state standard deviation ``sigma``, correlation length ``L``), the ties of
+frames ``f`` and ``g`` whose frame vectors are ``d`` apart are tied by the process's
+transition::
 
-    r_g = a r_f + w,    a = exp(-dt / tau),    w ~ N(0, sigma^2 (1 - a^2))
+    r_g = a r_f + w,    a = exp(-d / L),    w ~ N(0, sigma^2 (1 - a^2))
 
 so the factor's residual is ``r_g - a r_f``, whitened by ``sigma sqrt(1 - a^2)``. A chain of
 them, with the plain tie (``sigma``) on its first frame, is exactly the process's density: the
 steady state holds at every frame, and consecutive frames differ by about
-``sigma sqrt(2 dt / tau)`` when ``dt << tau``. As ``tau -> 0`` (``a -> 0``) it becomes the
+``sigma sqrt(2 d / L)`` when ``d << L``. As ``L -> 0`` (``a -> 0``) it becomes the
 independent per-frame tie of each frame (``docs/estimation.md``, "A model error that drifts").
+The same factor serves a process in time (``d`` seconds, ``L`` a correlation time).
 
 Jacobian convention: that of :func:`~apcc_graph.factors.kinematic.segment_tie_residual`
 (right-hand perturbations ``T . Exp(d)``, ``x + d``); the earlier frame's blocks are scaled by
@@ -39,16 +41,18 @@ Tie = tuple[int, int, "int | FloatArray"]
 previous segment's tip) or known ``(4, 4)`` base pose (the robot's base)."""
 
 
-def decay(dt: float, tau: float) -> float:
-    """``a = exp(-dt / tau)``, the fraction of a model error left after ``dt`` seconds (0 for
-    ``tau = 0``, an independent error per frame).
+def decay(distance: float, length: float) -> float:
+    """``a = exp(-distance / length)``, the fraction of a model error left after the frame
+    vectors moved ``distance`` (0 for ``length = 0``, an independent error per frame).
 
     Raises:
-        ValueError: a negative or non-finite ``dt`` or ``tau``.
+        ValueError: a negative or non-finite ``distance`` or ``length``.
     """
-    if not (math.isfinite(dt) and dt >= 0.0 and math.isfinite(tau) and tau >= 0.0):
-        raise ValueError(f"decay(dt={dt!r}, tau={tau!r}): expected finite values >= 0 (seconds)")
-    return 0.0 if tau == 0.0 else math.exp(-dt / tau)
+    if not (math.isfinite(distance) and distance >= 0.0 and math.isfinite(length)
+            and length >= 0.0):
+        raise ValueError(f"decay(distance={distance!r}, length={length!r}): expected finite "
+                         "values >= 0")
+    return 0.0 if length == 0.0 else math.exp(-distance / length)
 
 
 def drifting_tie_factor(earlier: Tie, later: Tie, bending: Bending, segment: int, a: float,

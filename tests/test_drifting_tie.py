@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from apcc_graph import Segment
 from apcc_graph.estimation.model_noise import segment_correlations
-from apcc_graph.estimation.model_ties import MIN_DECAY, ModelTies
+from apcc_graph.estimation.model_ties import MIN_DECAY, MIN_DISTANCE, ModelTies
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.factors.drifting_tie import decay, drifting_tie_factor
 from apcc_graph.factors.keys import frame_key, tip_key
@@ -109,7 +109,7 @@ def test_bad_arguments_are_refused() -> None:
         drifting_tie_factor(earlier, later, bending, 2, 0.5, SIGMAS)
     with pytest.raises(ValueError, match="repeated keys"):
         drifting_tie_factor(later, later, bending, 1, 0.5, SIGMAS)
-    with pytest.raises(ValueError, match="seconds"):
+    with pytest.raises(ValueError, match="expected finite values >= 0"):
         decay(-0.1, 1.0)
 
 
@@ -119,28 +119,28 @@ def test_decay() -> None:
     assert decay(0.5, 0.5) == pytest.approx(math.exp(-1.0))
 
 
-@pytest.mark.parametrize("tau", [0.05, 0.5, 5.0])
-def test_a_chain_is_the_gauss_markov_process(tau: float) -> None:
-    """Tips tied only by the model error (frame vectors and base held): each frame's tip
-    varies by the steady-state sigma, neighbours correlate by ``a``, in every component."""
+@pytest.mark.parametrize("length", [0.01, 0.1, 1.0])
+def test_a_chain_is_the_gauss_markov_process(length: float) -> None:
+    """Tips tied only by the model error (frame vectors and base held, the bends moving 0.02
+    rad a frame): each frame's tip varies by the steady-state sigma, neighbours correlate by
+    ``a = exp(-0.02 / length)``, in every component."""
     bending = Bending.free(SEGMENTS[:1])
     sigmas = ((float(SIGMAS[3]), float(SIGMAS[0])),)
-    ties = ModelTies(bending, sigmas, (tau,))
-    times = np.cumsum(np.r_[0.0, np.full(11, 0.1)])
+    ties = ModelTies(bending, sigmas, (length,))
+    path = np.array([0.3, -0.2]) + np.outer(np.arange(12) * 0.02, [0.6, 0.8])
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
-    x = np.array([0.3, -0.2])
     held = gtsam.noiseModel.Isotropic.Sigma(bending.dim, 1e-9)
-    for f, t in enumerate(times):
+    for f, x in enumerate(path):
         values.insert(frame_key(f), x)
         values.insert(tip_key(f, 0), gtsam.Pose3(bending.transform(x, 0)))
         graph.add(gtsam.PriorFactorVector(frame_key(f), x, held))
-        previous = None if f == 0 else (f - 1, float(times[f - 1]), np.eye(4))
-        for factor in ties.frame(f, float(t), np.eye(4), previous):
+        previous = None if f == 0 else (f - 1, path[f - 1], np.eye(4))
+        for factor in ties.frame(f, x, np.eye(4), previous):
             graph.add(factor)
     marginals = gtsam.Marginals(graph, values)
     steady = np.array([sigmas[0][1]] * 3 + [sigmas[0][0]] * 3) ** 2
-    a = math.exp(-0.1 / tau)
+    a = math.exp(-0.02 / length)
     for f in (0, 5, 11):
         np.testing.assert_allclose(np.diag(marginals.marginalCovariance(tip_key(f, 0))), steady,
                                    rtol=1e-6)
@@ -152,19 +152,33 @@ def test_a_chain_is_the_gauss_markov_process(tau: float) -> None:
 
 def test_plain_ties_where_the_error_decays_within_a_frame() -> None:
     bending = Bending.free(SEGMENTS)
-    ties = ModelTies(bending, ((0.002, 0.01), (0.003, 0.02)), (10.0, 0.001))
-    first = ties.frame(0, 0.0, np.eye(4), None)
+    ties = ModelTies(bending, ((0.002, 0.01), (0.003, 0.02)), (0.5, 0.001))
+    x0, x1 = np.zeros(bending.dim), np.full(bending.dim, 0.01)
+    first = ties.frame(0, x0, np.eye(4), None)
     assert [len(f.keys()) for f in first] == [2, 3]
-    later = ties.frame(1, 0.1, np.eye(4), (0, 0.0, np.eye(4)))
+    later = ties.frame(1, x1, np.eye(4), (0, x0, np.eye(4)))
     assert [len(f.keys()) for f in later] == [4, 3]  # a drifting tie, then a plain one
+
+
+def test_frames_at_the_same_bends_are_not_tied_rigidly() -> None:
+    """Two frames at the same estimate count :data:`MIN_DISTANCE` apart: the transition's
+    sigma stays a finite fraction of the steady state's."""
+    bending = Bending.free(SEGMENTS[:1])
+    ties = ModelTies(bending, ((0.002, 0.01),), (math.radians(12.0),))
+    x = np.array([0.2, 0.1])
+    factor = ties.frame(1, x, np.eye(4), (0, x, np.eye(4)))[0]
+    a = math.exp(-MIN_DISTANCE / math.radians(12.0))
+    sigmas = factor.noiseModel().sigmas()
+    np.testing.assert_allclose(sigmas[0], 0.01 * math.sqrt(1 - a * a), rtol=1e-9)
+    assert sigmas[0] > 0.1 * 0.01
 
 
 def test_the_option_and_the_robot_file() -> None:
     robot = Robot(list(SEGMENTS))
     assert segment_correlations("robot", robot) == (0.0, 0.0)
-    errors = [ModelError(0.002, 0.01, correlation_time=3.0), None]
+    errors = [ModelError(0.002, 0.01, correlation_time=3.0, correlation_bend=0.2), None]
     measured = Robot([replace(SEGMENTS[0], model_error=errors[0]), SEGMENTS[1]])
-    assert segment_correlations("robot", measured) == (3.0, 0.0)
+    assert segment_correlations("robot", measured) == (0.2, 0.0)
     assert segment_correlations(0.5, measured) == (0.5, 0.5)
     assert GraphOptions(model_correlation=2).model_correlation == 2.0
     for bad in (-1.0, math.inf, "often", True):

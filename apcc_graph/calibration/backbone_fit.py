@@ -159,7 +159,7 @@ def _model_errors(layout: Layout, z: FloatArray, bends: FloatArray, measured: Fl
     model = model_relative_poses(layout, z, bends)
     return tuple(measure_model_error(model[:, i, :3, 3] - measured[:, i, :3, 3],
                                      rotation_errors(measured[:, i], model[:, i]), times,
-                                     source)
+                                     source, bends)
                  for i in range(layout.n_segments))
 
 

@@ -109,7 +109,7 @@ def approximate(sigmas: tuple[Pair, ...] | None) -> bool:
 
 
 def correlation_normalised(value: object) -> str | float:
-    """``GraphOptions.model_correlation`` checked: :data:`ROBOT` or seconds (finite, >= 0);
+    """``GraphOptions.model_correlation`` checked: :data:`ROBOT` or radians (finite, >= 0);
     ValueError naming the field and what is expected otherwise."""
     if value == ROBOT:
         return ROBOT
@@ -119,20 +119,20 @@ def correlation_normalised(value: object) -> str | float:
         tau = math.nan
     if isinstance(value, str | bool) or not (math.isfinite(tau) and tau >= 0.0):
         raise ValueError(f"GraphOptions.model_correlation = {value!r}: expected {ROBOT!r} (the "
-                         "robot file's correlation times) or seconds >= 0 (0: an independent "
-                         "model error per frame)")
+                         "robot file's correlation lengths) or radians of bend >= 0 (0: an "
+                         "independent model error per frame)")
     return tau
 
 
 def segment_correlations(model_correlation: str | float, robot: Robot) -> tuple[float, ...]:
-    """Per segment, how long its model error takes to change (seconds; 0: independent per
-    frame, the plain ties): ``model_correlation`` for every segment, or with :data:`ROBOT` the
-    robot file's measured correlation time (0 where the file has none)
-    (:mod:`apcc_graph.factors.drifting_tie`)."""
+    """Per segment, how far the bends move before its model error changes (radians of the
+    frame vector; 0: independent per frame, the plain ties): ``model_correlation`` for every
+    segment, or with :data:`ROBOT` the robot file's measured correlation length (0 where the
+    file has none) (:mod:`apcc_graph.factors.drifting_tie`)."""
     if model_correlation != ROBOT:
         return (float(model_correlation),) * robot.n_segments
-    return tuple(0.0 if seg.model_error is None or seg.model_error.correlation_time is None
-                 else seg.model_error.correlation_time for seg in robot.segments)
+    return tuple(0.0 if seg.model_error is None or seg.model_error.correlation_bend is None
+                 else seg.model_error.correlation_bend for seg in robot.segments)
 
 
 def tie_sigmas(sigmas: tuple[Pair, ...], segment: int) -> list[float]:
@@ -143,11 +143,13 @@ def tie_sigmas(sigmas: tuple[Pair, ...], segment: int) -> list[float]:
 
 def describe(sigmas: tuple[Pair, ...] | None, correlations: Sequence[float] = ()) -> str:
     """``"the exact model"`` or ``"model error as noise: 1.81 mm / 0.93 deg, ..."``, followed
-    by ``", drifting over 20 s, 0.06 s"`` where some segment's ``correlations`` is not 0."""
+    by ``", drifting over 12 deg, 15 deg of bend"`` where some segment's ``correlations``
+    (radians) is not 0."""
     if sigmas is None:
         return "the exact model"
     text = "model error as noise: " + ", ".join(
         f"{p * 1e3:.2f} mm / {math.degrees(r):.2f} deg" for p, r in sigmas)
     if any(correlations):
-        text += ", drifting over " + ", ".join(f"{tau:.2g} s" for tau in correlations)
+        text += (", drifting over " + ", ".join(f"{math.degrees(c):.2g} deg" for c in correlations)
+                 + " of bend")
     return text

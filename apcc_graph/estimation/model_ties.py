@@ -2,9 +2,10 @@
 (``docs/estimation.md``, "A model error that drifts").
 
 Each segment's tie holds its tip to its base through the segment's APCC transform at the frame
-vector, with the model error's noise. Where the segment's model error has a correlation time
-(:func:`~apcc_graph.estimation.model_noise.segment_correlations`) and the frame follows another
-in the graph, the tie is the model error's transition from that frame
+vector, with the model error's noise. Where the segment's model error has a correlation length in
+bend (:func:`~apcc_graph.estimation.model_noise.segment_correlations`) and the frame follows
+another in the graph, the tie is the model error's transition from that frame, over the
+distance between the two frames' vectors at the current estimate
 (:func:`apcc_graph.factors.drifting_tie.drifting_tie_factor`); otherwise, and on the first
 frame, the plain tie (:func:`apcc_graph.factors.kinematic.segment_tie_factor`): the steady state
 of the model error.
@@ -12,9 +13,11 @@ of the model error.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import gtsam
+import numpy as np
 
 from apcc_graph.estimation.model_noise import tie_sigmas
 from apcc_graph.factors.drifting_tie import decay, drifting_tie_factor
@@ -28,8 +31,13 @@ MIN_DECAY = 0.05
 ``r_g - a r_f`` then differs from ``r_g`` by at most 5% of the earlier error, and costs two
 ties' evaluation."""
 
-Previous = tuple[int, float, FloatArray]
-"""The frame before in the graph: its number, its time (seconds) and its base pose."""
+MIN_DISTANCE = math.radians(0.1)
+"""The least distance (radians) counted between two frames' vectors: about what the estimates
+of two frames' bends can be told apart by; a stiffer tie would hold two frames' model errors
+equal on the strength of estimates that are not."""
+
+Previous = tuple[int, FloatArray, FloatArray]
+"""The frame before in the graph: its number, its frame vector's estimate and its base pose."""
 
 
 class ModelTies:
@@ -38,7 +46,8 @@ class ModelTies:
     Args:
         bending: the robot's parameterisation.
         sigmas: per segment, the model error's (position m, rotation rad).
-        correlations: per segment, its correlation time (seconds; 0: independent per frame).
+        correlations: per segment, its correlation length in bend (radians; 0: independent per
+            frame).
     """
 
     def __init__(self, bending: Bending, sigmas: Sequence[tuple[float, float]],
@@ -47,14 +56,19 @@ class ModelTies:
         self.noise = [tie_sigmas(tuple(sigmas), j) for j in range(bending.n_segments)]
         self.correlations = tuple(float(tau) for tau in correlations)
 
-    def frame(self, f: int, t: float, base: FloatArray,
+    def frame(self, f: int, x: FloatArray, base: FloatArray,
               previous: Previous | None) -> list[gtsam.NonlinearFactor]:
-        """Frame ``f``'s ties (time ``t``, the robot's base pose ``base``), one per segment,
-        each a transition from ``previous`` where its model error drifts."""
+        """Frame ``f``'s ties (its frame vector's estimate ``x``, the robot's base pose
+        ``base``), one per segment, each a transition from ``previous`` where its model error
+        drifts. The decay is fixed when the factor is made (the batch makes its factors anew
+        at every stage, from its last solution)."""
+        distance = (0.0 if previous is None else
+                    max(float(np.linalg.norm(np.asarray(x) - np.asarray(previous[1]))),
+                        MIN_DISTANCE))
         out: list[gtsam.NonlinearFactor] = []
         for j, (noise, tau) in enumerate(zip(self.noise, self.correlations, strict=True)):
             own = base if j == 0 else tip_key(f, j - 1)
-            a = 0.0 if previous is None else decay(max(t - previous[1], 0.0), tau)
+            a = 0.0 if previous is None else decay(distance, tau)
             if previous is None or a < MIN_DECAY:
                 out.append(segment_tie_factor(frame_key(f), tip_key(f, j), own, self.bending,
                                               j, noise))
@@ -62,5 +76,5 @@ class ModelTies:
             e = previous[0]
             earlier = (frame_key(e), tip_key(e, j), previous[2] if j == 0 else tip_key(e, j - 1))
             out.append(drifting_tie_factor(earlier, (frame_key(f), tip_key(f, j), own),
-                                           self.bending, j, min(a, 1.0 - 1e-12), noise))
+                                           self.bending, j, a, noise))
         return out

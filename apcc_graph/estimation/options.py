@@ -53,11 +53,11 @@ class GraphOptions:
             ``(position in metres, rotation in radians)``: that noise for every segment; or
             one such pair per segment (:mod:`apcc_graph.estimation.model_noise`). The batch
             and the smoother; the chain has the exact model (it refuses an explicit noise).
-        model_correlation: how long a segment's model error takes to change, in seconds
-            (docs/estimation.md, "A model error that drifts"): ``"robot"`` (default): the
-            correlation time the calibration wrote into the robot file, per segment (0 where
-            it has none); a number: that for every segment; ``0``: an independent model error
-            per frame. Only with model error as noise.
+        model_correlation: how far the bends move before a segment's model error changes,
+            radians of the frame vector (docs/estimation.md, "A model error that drifts"):
+            ``"robot"`` (default): the correlation length the calibration wrote into the robot
+            file, per segment (0 where it has none); a number: that for every segment; ``0``:
+            an independent model error per frame. Only with model error as noise.
     """
 
     threshold_px: float = 1.0

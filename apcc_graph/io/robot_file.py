@@ -3,9 +3,9 @@ camera table it shares with the setup file of calibration photos (:func:`camera_
 
 Version 2 adds each segment's measured departure from its model, ``[segments.model_error]``
 (:class:`~apcc_graph.model.model_error.ModelError`: ``position_mm``, ``rotation_deg``, the
-optional ``correlation_s`` and ``measured``, how it was measured). A robot with a model error is
-written as version 2, any other as version 1, which version-1 readers keep reading; both are
-read.
+optional ``correlation_s``, ``correlation_deg`` and ``measured``, how it was measured). A robot
+with a model error is written as version 2, any other as version 1, which version-1 readers keep
+reading; both are read.
 
 Angles are degrees in the file (keys ending in ``_deg``) and radians in memory. The camera mounting
 ``tip_T_cam`` is a translation in metres and a unit quaternion ``(w, x, y, z)``. Every error names
@@ -50,12 +50,15 @@ _CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "model"
 
 
 def _model_error_from(table: TomlTable) -> ModelError:
-    table.check_keys(("position_mm", "rotation_deg", "correlation_s", "measured"),
+    table.check_keys(("position_mm", "rotation_deg", "correlation_s", "correlation_deg",
+                      "measured"),
                      required=("position_mm", "rotation_deg"))
     values: dict[str, Any] = {"position": table.number("position_mm") / 1000.0,
                               "rotation": math.radians(table.number("rotation_deg"))}
     if table.has("correlation_s"):
         values["correlation_time"] = table.number("correlation_s")
+    if table.has("correlation_deg"):
+        values["correlation_bend"] = math.radians(table.number("correlation_deg"))
     if table.has("measured"):
         values["measured"] = table.string("measured")
     try:
@@ -261,6 +264,8 @@ def robot_to_toml(robot: Robot, markers: Mapping[float, np.ndarray] | None = Non
                                     "rotation_deg": _degrees(error.rotation)}
             if error.correlation_time is not None:
                 entry["model_error"]["correlation_s"] = float(f"{error.correlation_time:.6g}")
+            if error.correlation_bend is not None:
+                entry["model_error"]["correlation_deg"] = _degrees(error.correlation_bend)
             if error.measured:
                 entry["model_error"]["measured"] = error.measured
         if cam is not None:

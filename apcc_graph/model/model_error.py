@@ -32,12 +32,18 @@ class ModelError:
         correlation_time: how long the departure takes to change: the lag at which its
             autocorrelation falls below ``1/e`` (seconds); ``None`` when not measured.
         measured: how it was measured (the method, the source, the number of samples).
+        correlation_bend: how far the robot's bends move before the departure changes: the
+            distance between two samples' frame vectors (radians; every segment's bend)
+            at which the departures' correlation falls below ``1/e``; ``None`` when not
+            measured. A segment's departure from its model is a function of the robot's
+            shape, so this, not time, is what the estimator's drifting tie uses.
     """
 
     position: float
     rotation: float
     correlation_time: float | None = None
     measured: str = ""
+    correlation_bend: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("position", "rotation"):
@@ -52,6 +58,12 @@ class ModelError:
                 raise ValueError(f"ModelError.correlation_time = {self.correlation_time!r}: "
                                  "expected a finite value > 0 (seconds) or None")
             object.__setattr__(self, "correlation_time", tau)
+        if self.correlation_bend is not None:
+            length = float(self.correlation_bend)
+            if not (math.isfinite(length) and length > 0.0):
+                raise ValueError(f"ModelError.correlation_bend = {self.correlation_bend!r}: "
+                                 "expected a finite value > 0 (radians) or None")
+            object.__setattr__(self, "correlation_bend", length)
 
     @property
     def is_zero(self) -> bool:
@@ -59,8 +71,14 @@ class ModelError:
         return self.position == 0.0 and self.rotation == 0.0
 
     def describe(self) -> str:
-        """``"1.81 mm, 0.93 deg, changing over 2.1 s"`` (what a report prints)."""
+        """``"1.81 mm, 0.93 deg, changing over 2.1 s and 8.3 deg of bend"`` (what a report
+        prints)."""
         text = f"{self.position * 1e3:.2f} mm, {math.degrees(self.rotation):.2f} deg"
+        over = []
         if self.correlation_time is not None:
-            text += f", changing over {self.correlation_time:.2g} s"
+            over.append(f"{self.correlation_time:.2g} s")
+        if self.correlation_bend is not None:
+            over.append(f"{math.degrees(self.correlation_bend):.2g} deg of bend")
+        if over:
+            text += ", changing over " + " and ".join(over)
         return text

@@ -77,7 +77,7 @@ class NoisyTracks:
         self._tips: dict[int, FloatArray] = {}  # frame -> (S, 4, 4), frames in the window
         self._models: dict[int, FloatArray] = {}  # frame -> the model's tips at its estimate
         self._bases: dict[int, FloatArray] = {}
-        self._times: dict[int, float] = {}
+        self._x: dict[int, FloatArray] = {}  # frame -> its vector's estimate
 
     @property
     def committed(self) -> int:
@@ -109,7 +109,7 @@ class NoisyTracks:
     def retire(self, leaving: list[int], first_kept: int) -> None:
         """Frames ``leaving`` left the window."""
         for g in leaving:
-            for held in (self._tips, self._models, self._bases, self._times):
+            for held in (self._tips, self._models, self._bases, self._x):
                 held.pop(g, None)
 
     def associate(self, rows: Rows) -> None:
@@ -134,12 +134,12 @@ class NoisyTracks:
         tips = model.copy()
         if f - 1 in self._tips:  # the previous frame's departure from the model
             tips = model @ np.linalg.inv(self._models[f - 1]) @ self._tips[f - 1]
-        previous = ((f - 1, self._times[f - 1], self._bases[f - 1]) if f - 1 in self._times
-                    else None)
-        self._tips[f], self._models[f], self._bases[f], self._times[f] = tips, model, base, t
+        previous = (f - 1, self._x[f - 1], self._bases[f - 1]) if f - 1 in self._x else None
+        self._tips[f], self._models[f], self._bases[f] = tips, model, base
+        self._x[f] = np.array(x, dtype=float)
         for j in range(self.n_segments):
             add.variable(tip_key(f, j), gtsam.Pose3(tips[j]), t)
-        for factor in self._ties.frame(f, t, base, previous):
+        for factor in self._ties.frame(f, x, base, previous):
             add.graph.add(factor)
 
     def observe(self, add: Additions, f: int, t: float, rows: Rows, marks: None,
@@ -165,7 +165,7 @@ class NoisyTracks:
         for g in self._tips:
             if not estimate.exists(frame_key(g)):
                 continue
-            x = estimate.atVector(frame_key(g))
+            x = self._x[g] = estimate.atVector(frame_key(g))
             self._tips[g] = np.array([estimate.atPose3(tip_key(g, j)).matrix()
                                       for j in range(self.n_segments)])
             self._models[g] = forward_tips(self.bending, x[None], self._bases[g][None])[0]
@@ -173,7 +173,7 @@ class NoisyTracks:
     def reset(self, keep: int | None = None, base: FloatArray | None = None) -> None:
         """Forget every point, held row and tip (a new window)."""
         self.points.reset()
-        for held in (self._tips, self._models, self._bases, self._times):
+        for held in (self._tips, self._models, self._bases, self._x):
             held.clear()
 
     def restart_frame(self, add: Additions, f: int, t: float, x: FloatArray,

@@ -23,7 +23,7 @@ from apcc_graph.estimation.model_noise import segment_correlations
 from apcc_graph.estimation.model_ties import ModelTies
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.robust import gnc_tls_weights
-from apcc_graph.factors.keys import point_key, tip_key
+from apcc_graph.factors.keys import frame_key, point_key, tip_key
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.factors.triangulation import robust_triangulate
 from apcc_graph.frontend.rotation_pairs import pair_inliers
@@ -94,14 +94,14 @@ class NoisyTerms:
                               segment_correlations(options.model_correlation, robot))
         self.cameras: list[_Camera] = []
         self.bases = self.tips = np.empty((0, bending.n_segments, 4, 4))
-        self.times = np.empty(0)
+        self.x = np.empty((0, bending.dim))
 
     def start(self, sequence: Sequence, x: FloatArray, robustness: Robustness) -> list[float]:
         """The first decisions from the images alone, the points triangulated with them at the
         model's tips at ``x``; a truncated stage (``[inf]``; no GNC schedule is used)."""
         base = np.eye(4) if sequence.world_T_base is None else sequence.world_T_base
         self.bases = np.broadcast_to(base, (sequence.n_frames, 4, 4))
-        self.times = np.asarray(sequence.timestamps, dtype=float)
+        self.x = np.array(x, dtype=float)
         self.tips = forward_tips(self.bending, np.asarray(x, dtype=float), self.bases)
         self.cameras = []
         for obs in observed_cameras(sequence, self.options):
@@ -119,8 +119,8 @@ class NoisyTerms:
         observations (C++ projection factors) and the weak priors of their points."""
         out: list[gtsam.NonlinearFactor] = []
         for f in range(len(self.tips)):
-            previous = None if f == 0 else (f - 1, float(self.times[f - 1]), self.bases[f - 1])
-            out += self.ties.frame(f, float(self.times[f]), self.bases[f], previous)
+            previous = None if f == 0 else (f - 1, self.x[f - 1], self.bases[f - 1])
+            out += self.ties.frame(f, self.x[f], self.bases[f], previous)
         K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
         prior = gtsam.noiseModel.Isotropic.Sigma(3, POINT_PRIOR_SIGMA)
         for c in self.cameras:
@@ -151,8 +151,10 @@ class NoisyTerms:
         return values, None
 
     def measure(self, values: gtsam.Values) -> None:
-        """Take the tips of the solution ``values`` and re-triangulate every track there."""
+        """Take the frame vectors and the tips of the solution ``values`` and re-triangulate
+        every track there."""
         F, S = self.tips.shape[:2]
+        self.x = np.array([values.atVector(frame_key(f)) for f in range(F)])
         self.tips = np.array([[values.atPose3(tip_key(f, j)).matrix() for j in range(S)]
                               for f in range(F)])
         for c in self.cameras:
