@@ -15,7 +15,12 @@ from hypothesis import strategies as st
 
 from apcc_graph.bench.smoother import FPS, ROBOT_FILE
 from apcc_graph.calibration.backbone_fit import fit_backbone
-from apcc_graph.calibration.model_error import NEGLIGIBLE, departure, measure_model_error
+from apcc_graph.calibration.model_error import (
+    NEGLIGIBLE,
+    correlation_bend,
+    departure,
+    measure_model_error,
+)
 from apcc_graph.calibration.model_exact import model_exact_poses
 from apcc_graph.cli import main
 from apcc_graph.estimation.methods import estimate
@@ -71,6 +76,27 @@ def test_a_persistent_departure_is_told_from_white_noise(seed: int) -> None:
     assert departure(rng.normal(0.0, 1.0, (len(t), 3)), t)[0] == 0.0
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_the_correlation_length_in_bend_is_measured_whatever_the_order_in_time(
+        seed: int) -> None:
+    """A departure that is a smooth function of the bends (a random Fourier series of known
+    correlation length along a path that revisits its shapes in a shuffled order): the
+    correlation in time says little, the length in bend is found within a factor 1.5; white
+    residuals get none."""
+    rng = np.random.default_rng(seed)
+    n, length = 600, 0.15
+    bends = rng.uniform(-0.6, 0.6, (n, 2))
+    # A squared-exponential process has correlation exp(-d^2 / (2 l^2)): 1/e at d = l sqrt(2).
+    scale = length / math.sqrt(2.0)
+    freqs = rng.normal(0.0, 1.0 / scale, (200, 2))
+    phases = rng.uniform(0.0, 2 * math.pi, (200, 3))
+    r = 1e-3 * math.sqrt(2.0 / 200) * np.cos((bends @ freqs.T)[..., None] + phases).sum(axis=1)
+    found = correlation_bend(r, bends, 0.0)
+    assert found is not None and length / 1.5 < found < 1.5 * length, found
+    white = correlation_bend(rng.normal(0.0, 1e-3, (n, 3)), bends, 0.0)
+    assert white is not None and white < 0.2 * length, white  # the first bin with pairs
+
+
 def test_samples_across_a_gap_are_not_neighbours() -> None:
     """White noise whose samples jump between two levels at a gap is still white: the pairs
     across the gap are left out (paired, they would look like a persistent departure)."""
@@ -90,6 +116,8 @@ def test_the_calibration_of_a_model_exact_motion_measures_no_model_error() -> No
     for error in cal.model_errors:
         assert error.position > 1e-3 and error.rotation > math.radians(0.5), error
         assert error.correlation_time is not None and error.correlation_time > 1.0
+        assert error.correlation_bend is not None
+        assert math.radians(5.0) < error.correlation_bend < math.radians(30.0)  # 12 and 15
     for seed in range(3):
         itself = fit_backbone(model_exact_poses(poses, cal, robot, seed=seed), robot)
         assert all(e.is_zero for e in itself.model_errors), itself.model_errors
@@ -110,15 +138,17 @@ def test_below_the_negligible_size_the_error_is_zero() -> None:
 # ---------------------------------------------------------------------------- the robot file
 @settings(max_examples=30, deadline=None)
 @given(position=st.floats(0.0, 0.05), rotation=st.floats(0.0, 0.2),
-       tau=st.one_of(st.none(), st.floats(0.01, 100.0)), measured=st.text(max_size=40))
+       tau=st.one_of(st.none(), st.floats(0.01, 100.0)), measured=st.text(max_size=40),
+       length=st.one_of(st.none(), st.floats(1e-4, 3.0)))
 def test_a_model_error_round_trips_through_robot_toml(tmp_path_factory: pytest.TempPathFactory,
                                                       position: float, rotation: float,
-                                                      tau: float | None, measured: str) -> None:
+                                                      tau: float | None, measured: str,
+                                                      length: float | None) -> None:
     """Written as ``robot@2``; read back equal to within the file's digits; saved again, the
     same bytes."""
     path = tmp_path_factory.mktemp("robot") / "robot.toml"
-    robot = _with_errors(load_robot(REAL_ROBOT), ModelError(position, rotation, tau, measured),
-                         None)
+    robot = _with_errors(load_robot(REAL_ROBOT),
+                         ModelError(position, rotation, tau, measured, length), None)
     save_robot(robot, path)
     text = path.read_text()
     assert 'format = "apcc-graph/robot@2"' in text and "[segments.model_error]" in text
@@ -130,6 +160,9 @@ def test_a_model_error_round_trips_through_robot_toml(tmp_path_factory: pytest.T
     assert (got.correlation_time is None) == (tau is None) and got.measured == measured
     if tau is not None:
         assert got.correlation_time == pytest.approx(tau, rel=1e-5)
+    assert (got.correlation_bend is None) == (length is None)
+    if length is not None:
+        assert got.correlation_bend == pytest.approx(length, rel=1e-12)
     save_robot(back, path)
     assert path.read_text() == text
 
