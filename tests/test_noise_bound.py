@@ -7,6 +7,7 @@ import math
 
 import gtsam
 import numpy as np
+import pytest
 
 from apcc_graph.bench.smoother import FPS, ROBOT_FILE
 from apcc_graph.evaluation.noise_bound import model_noise_graph, model_noise_tip_bound
@@ -49,14 +50,19 @@ def _whitened(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> np.nda
     return np.concatenate(parts)
 
 
-def test_the_bound_is_the_inverse_of_the_finite_difference_fisher_matrix() -> None:
-    """On three frames and 40 points, gtsam's marginals of the model-noise graph give the
-    same segment-end bound (within 2%) as the inverse of ``J^T J``, ``J`` the central
+@pytest.mark.parametrize("correlations", [(), (0.05, 0.05, 0.05)])
+def test_the_bound_is_the_inverse_of_the_finite_difference_fisher_matrix(
+        correlations: tuple[float, ...]) -> None:
+    """On three frames and 40 points, the bound from the model-noise graph (independent ties,
+    or drifting ones) is the same (within 2%) as the inverse of ``J^T J``, ``J`` the central
     differences of every whitened residual in every unknown's tangent directions."""
     sim = simulate(load_robot(ROBOT_FILE), 3, noise_px=1.0, seed=1, fps=FPS, n_points=40)
     bending = Bending.fixed(sim.sequence.robot.segments)
     vectors = sim.sequence.thetas
-    graph, values = model_noise_graph(sim, vectors, bending, SIGMAS, 1.0, math.radians(2.0))
+    graph, values = model_noise_graph(sim, vectors, bending, SIGMAS, 1.0, math.radians(2.0),
+                                      correlations)
+    if correlations:  # the drifting ties are there
+        assert any(len(graph.at(i).keys()) > 3 for i in range(graph.size()))
     keys = list(values.keys())
     dims = [6 if _is_pose(values, k) else (3 if _is_point(values, k) else
                                             len(values.atVector(k))) for k in keys]
@@ -71,7 +77,7 @@ def test_the_bound_is_the_inverse_of_the_finite_difference_fisher_matrix() -> No
     J = np.column_stack(columns)
     cov = np.linalg.inv(J.T @ J)
     bound = model_noise_tip_bound(sim, vectors, bending, SIGMAS, 1.0, math.radians(2.0),
-                                  step=1)
+                                  step=1, correlations=correlations)
     for f in range(3):
         for j in range(3):
             at = where[tip_key(f, j)] + 3
@@ -102,3 +108,19 @@ def test_a_tighter_model_tells_more() -> None:
                                    math.radians(0.1), step=4).rms()
              for s in (1e-6, 3e-4, 3e-3)]
     assert np.all(sizes[0] < sizes[1]) and np.all(sizes[1] < sizes[2]), sizes
+
+
+def test_a_robot_at_rest_has_a_finite_bound() -> None:
+    """Points seen from nearly one place (a robot at rest) have only the weak prior along
+    their rays: gtsam's marginals refuse the graph as indeterminate; the bound eliminates them
+    and is finite."""
+    robot = load_robot(ROBOT_FILE)
+    still = simulate(robot, 10, noise_px=1.0, seed=3, fps=FPS, n_points=300, amplitude=1e-6)
+    bending = Bending.fixed(robot.segments)
+    graph, values = model_noise_graph(still, still.sequence.thetas, bending, SIGMAS, 1.0,
+                                      math.radians(2.0))
+    with pytest.raises(RuntimeError, match="Indeterminate"):
+        gtsam.Marginals(graph, values)
+    bound = model_noise_tip_bound(still, still.sequence.thetas, bending, SIGMAS, 1.0,
+                                  math.radians(2.0), step=3)
+    assert np.all(np.isfinite(bound.sigmas)) and np.all(bound.sigmas > 0.0), bound.sigmas

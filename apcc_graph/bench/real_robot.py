@@ -206,7 +206,8 @@ def _yardsticks(real: Simulation, exact: Simulation, floor: TipFloor,
     if noise is not None:  # what the images and the model with its error tell
         bending = Bending.free(model.segments)
         bound = model_noise_tip_bound(real, bending.vector(floor.thetas, floor.psis), bending,
-                                      noise, noise_px, start_sigma, BOUND_STEP)
+                                      noise, noise_px, start_sigma, BOUND_STEP,
+                                      segment_correlations(ROBOT, model))
         out["real", "noise bound"] = TipErrors(bound.sigmas, np.full_like(bound.sigmas, np.nan))
     for method, lag in _bounds(exact.sequence, methods).items():
         bound = tip_bound(exact, noise_px, start_sigma, lag, BOUND_STEP, spatial=True)
