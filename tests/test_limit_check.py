@@ -1,5 +1,5 @@
-"""A bend at its joint limit is never reported with a small sigma
-(``apcc_graph.estimation.limit_check``)."""
+"""A bend at its joint limit is never reported with a small sigma, and frames where the
+residual test fails are flagged (``apcc_graph.estimation.limit_check``)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,19 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import fast_stretch_replay
 
 from apcc_graph.bench.smoother import FPS, ROBOT_FILE
-from apcc_graph.estimation.limit_check import AT_LIMIT, LimitWarning, at_the_limits
+from apcc_graph.estimation.limit_check import (
+    AT_LIMIT,
+    MISFIT,
+    LimitWarning,
+    at_the_limits,
+    flag_misfits,
+)
 from apcc_graph.estimation.methods import estimate
+from apcc_graph.estimation.model_fit import CameraFit, ModelFit
+from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.robot import Robot
 from apcc_graph.simulation.simulator import simulate
@@ -48,3 +57,45 @@ def test_inside_the_limits_nothing_changes() -> None:
         est = estimate(seq, method="batch", theta0=seq.thetas[0], noise_px=1.0)
     assert at_the_limits(est, math.radians(1.0)) is est
     assert not (est.status == AT_LIMIT).any()
+
+
+def _fit(shares: list[list[float]], rejected: int = 100) -> ModelFit:
+    """A residual test of two cameras (segments 1 and 2) with these per-frame shares."""
+    cameras = tuple(CameraFit(c, 1000, 900, rejected, 0.002, np.array(s, dtype=float))
+                    for c, s in enumerate(shares))
+    return ModelFit(cameras, 0.05, 3.5)
+
+
+def test_frames_where_the_residual_test_fails_are_flagged() -> None:
+    """Camera 2 fails in frames 1 and 3: those frames are ``misfit`` for segments 1 and 2 (both
+    place camera 2), except a bend already at its limit; camera 1's frames above the alarm
+    are not flagged while camera 1 passes as a whole (few rejected); a passing test changes
+    nothing."""
+    sim = simulate(load_robot(ROBOT_FILE), 5, noise_px=1.0, seed=4, fps=FPS, n_points=200)
+    est = estimate(sim.sequence, method="chain", theta0=sim.sequence.thetas[0])
+    status = est.status.copy()
+    status[3, 0] = AT_LIMIT
+    est = replace(est, status=status)
+    camera_2 = [0.0, 0.2, 0.01, 0.3, math.nan]
+    fit = _fit([[0.5] * 5, camera_2])
+    fit = ModelFit((replace(fit.cameras[0], rejected=5), fit.cameras[1]), 0.05, 3.5)
+    flagged = flag_misfits(est, fit)
+    misfit = flagged.status == MISFIT
+    assert misfit[:, :2].tolist() == [[False, False], [True, True], [False, False],
+                                      [False, True], [False, False]]
+    assert flagged.status[3, 0] == AT_LIMIT and not misfit[:, 2].any()
+    assert flag_misfits(est, _fit([[0.0] * 5, [0.01] * 5], rejected=5)) is est
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_the_exact_model_on_real_motion_is_flagged() -> None:
+    """The exact-model batch on 30 frames of the real robot's replayed motion fails the
+    residual test and flags frames ``misfit``; the same on the model-exact version of the
+    motion flags none."""
+    for exact, flags in ((False, True), (True, False)):
+        _, seq, _, floor = fast_stretch_replay(30, exact=exact)
+        est = estimate(seq, method="batch", theta0=floor.thetas[0], psi0=floor.psis[0],
+                       spatial=True, theta0_sigma=math.radians(2.0),
+                       graph=GraphOptions(model_sigma=None))
+        assert bool((est.status == MISFIT).any()) == flags, est.model_fit
+        assert (est.model_fit is not None and not est.model_fit.explained) == flags

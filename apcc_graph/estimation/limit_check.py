@@ -8,6 +8,14 @@ The prior's curvature then makes the marginal sigma small (0.11 deg at a 120 deg
 real robot's segment whose measured bend was about 11 deg). :func:`at_the_limits` marks
 those bends ``"at-limit"``, reports their sigma as the whole range ``theta_max`` (the bend is
 somewhere in it, as far as the estimate can tell) and warns once, naming the segments.
+
+Where the residual test fails (:mod:`~apcc_graph.estimation.model_fit`: the model rejects many
+of the observations the images alone accept), :func:`flag_misfits` marks the frames where it
+fails ``"misfit"``: each failing camera's frames whose own share of rejected observations is
+above the alarm, for the camera's segment and every segment below it (they all place that
+camera). Their sigmas describe the pixel noise, not what the model leaves unexplained; the
+status says so frame by frame, and the :class:`~apcc_graph.estimation.model_fit.
+ModelFitWarning` says it for the whole estimate.
 """
 
 from __future__ import annotations
@@ -17,10 +25,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from apcc_graph.estimation.model_fit import ModelFit
 from apcc_graph.estimation.result import Estimate
 
 AT_LIMIT = "at-limit"
 """The status of a bend within the margin of its joint limit."""
+MISFIT = "misfit"
+"""The status of a bend in a frame where the residual test fails (module docstring)."""
 
 
 class LimitWarning(UserWarning):
@@ -45,3 +56,18 @@ def at_the_limits(result: Estimate, margin: float) -> Estimate:
                   "sigmas are reported as the whole range and their status is "
                   f"{AT_LIMIT!r}", LimitWarning, stacklevel=3)
     return replace(result, sigmas=sigmas, status=status)
+
+
+def flag_misfits(result: Estimate, fit: ModelFit) -> Estimate:
+    """``result`` with the frames where ``fit`` fails marked :data:`MISFIT` (module docstring;
+    a bend already :data:`AT_LIMIT` keeps that); the same object when the test passes."""
+    failing = fit.failing()
+    if not failing:
+        return result
+    flagged = np.zeros(result.status.shape, dtype=bool)
+    for camera in failing:
+        shares = camera.frame_shares
+        frames = np.isfinite(shares) & (shares > fit.alarm)
+        flagged[:len(frames), :camera.camera + 1] |= frames[:len(flagged), None]
+    status = np.where(flagged & (result.status != AT_LIMIT), MISFIT, result.status)
+    return replace(result, status=status)

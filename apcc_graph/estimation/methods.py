@@ -11,7 +11,7 @@ from os import PathLike
 import numpy as np
 from numpy.typing import ArrayLike
 
-from apcc_graph.estimation.limit_check import at_the_limits
+from apcc_graph.estimation.limit_check import at_the_limits, flag_misfits
 from apcc_graph.estimation.model_fit import ModelFit
 from apcc_graph.estimation.model_noise import ROBOT
 from apcc_graph.estimation.observation_checks import (  # noqa: F401 - part of this API
@@ -127,8 +127,8 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
     result = _run(sequence, theta0, psi0, spatial, graph, robustness, settings, progress)
     result = at_the_limits(result, graph.limit_sigma)
     if method != "chain" and robustness.misfit_alarm is not None:
-        result = replace(result, model_fit=_model_fit(sequence, result, graph, robustness,
-                                                      theta0, psi0))
+        fit = _model_fit(sequence, result, graph, robustness, theta0, psi0)
+        result = flag_misfits(replace(result, model_fit=fit), fit)
     return result if start is None else replace(result, start=start)
 
 
