@@ -602,6 +602,23 @@ def test_bench_real_scores_each_stretch_and_pools_them(
         run_real_bench(tmp_path, nominal, recordings=("missing",))
 
 
+def test_bench_real_replays_at_the_rate_asked(
+        tmp_path: Path, model_exact: tuple[BackbonePoses, np.ndarray, np.ndarray]) -> None:
+    """``fps``: the motion interpolated to that rate, the same stretches (twice the rate,
+    twice the frames, within a frame per stretch and version)."""
+    poses, _, _ = model_exact
+    save_backbone_poses(poses, tmp_path / "sweep" / "backbone_poses.csv")
+    nominal = Robot([Segment(LENGTH, k=0.25, delta_max=0.0, theta_max=THETA_MAX)] * 2,
+                    ROBOT.cameras)
+    counts = []
+    for fps in (None, 2.0 * RATE):
+        rows = run_real_bench(tmp_path, nominal, noise_px=1.0, outliers=0.0, seed=0,
+                              methods=("chain",), recordings=("sweep",), fps=fps)
+        counts.append({r.frames for r in rows if r.method == "chain"})
+    (native,), (doubled,) = counts
+    assert abs(doubled - 2 * native) <= 2, (native, doubled)
+
+
 def test_bench_real_pools_the_honesty_of_every_stretch() -> None:
     from apcc_graph.bench.real_honesty import Honesty as _Honesty
     from apcc_graph.bench.real_honesty import pooled_honesty as _pooled_honesty

@@ -217,8 +217,10 @@ def _yardsticks(real: Simulation, exact: Simulation, floor: TipFloor,
 
 def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers: float,
                     seed: int, start_sigma: float, methods: tuple[str, ...],
-                    model_sigma: tuple[float, float] = MODEL_SIGMA) -> list[RealRow]:
-    """Calibrate, replay, estimate and score one recording (module docstring)."""
+                    model_sigma: tuple[float, float] = MODEL_SIGMA,
+                    fps: float | None = None) -> list[RealRow]:
+    """Calibrate, replay (at ``fps``, interpolated; ``None``: at the recording's own sample
+    times), estimate and score one recording (module docstring)."""
     name = poses_path.parent.name
     poses = load_backbone_poses(poses_path)
     cal = fit_backbone(poses, robot)
@@ -226,7 +228,7 @@ def bench_recording(poses_path: Path, robot: Robot, *, noise_px: float, outliers
     exact_model = _model_exact_robot(poses, cal, robot, seed)
     markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
     ends = measured_ends(poses, model, markers)
-    options = dict(noise_px=noise_px, outlier_fraction=outliers, seed=seed)
+    options = dict(noise_px=noise_px, outlier_fraction=outliers, seed=seed, fps=fps)
     kept = [k for k, (a, b, _) in enumerate(motion_stretches(ends)) if b - a >= MIN_STRETCH]
     errors: dict[tuple[str, str], list[TipErrors]] = {}
     seconds: dict[tuple[str, str], float] = {}
@@ -292,8 +294,10 @@ def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers:
                    seed: int = 0, start_sigma: float = math.radians(2.0),
                    methods: tuple[str, ...] = METHODS,
                    recordings: tuple[str, ...] = RECORDINGS,
-                   model_sigma: tuple[float, float] = MODEL_SIGMA) -> list[RealRow]:
-    """:func:`bench_recording` of each recording ``data/<name>/backbone_poses.csv``.
+                   model_sigma: tuple[float, float] = MODEL_SIGMA,
+                   fps: float | None = None) -> list[RealRow]:
+    """:func:`bench_recording` of each recording ``data/<name>/backbone_poses.csv``, replayed
+    at ``fps`` (``None``: the recording's own sample times).
 
     Raises:
         ValueError: a recording's file is missing (named).
@@ -306,7 +310,7 @@ def run_real_bench(data: Path, robot: Robot, *, noise_px: float = 1.0, outliers:
                              "recordings (data/real_tdcr in the repository)")
         rows += bench_recording(path, robot, noise_px=noise_px, outliers=outliers, seed=seed,
                                 start_sigma=start_sigma, methods=methods,
-                                model_sigma=model_sigma)
+                                model_sigma=model_sigma, fps=fps)
     return rows
 
 

@@ -9,7 +9,9 @@ from pathlib import Path
 from apcc_graph.cli.common import FORMATTER, UserError, model_sigma, non_negative, positive
 
 EXAMPLES = {
-    "real": "apcc-graph bench real\n  apcc-graph bench real --methods chain --recordings impulse_2",
+    "real": "apcc-graph bench real\n"
+            "  apcc-graph bench real --methods chain --recordings impulse_2\n"
+            "  apcc-graph bench real --fps 30",
 }
 """Example commands per benchmark of this module."""
 
@@ -52,6 +54,10 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
     rb.add_argument("--start-sigma-deg", type=positive, default=2.0,
                     help="the start prior's sigma, degrees (default 2)")
     rb.add_argument("--seed", type=int, default=0, help="replay seed (default 0)")
+    rb.add_argument("--fps", type=positive, default=None,
+                    help="replay at this frame rate, the motion interpolated between the "
+                    "motion capture's samples (30: a real tip camera's rate; default: the "
+                    "recording's own sample times, about 16 a second)")
     rb.add_argument("--model-sigma", type=model_sigma, default="1,0.5", metavar="MM,DEG",
                     help="model noise of noise, smoother-noise and noise@floor: tip position mm, "
                     "rotation deg "
@@ -76,5 +82,7 @@ def run_real(args: argparse.Namespace) -> str:
     rows = run_real_bench(Path(args.data), load_robot(args.robot), noise_px=args.noise_px,
                           outliers=args.outliers, seed=args.seed,
                           start_sigma=math.radians(args.start_sigma_deg), methods=methods,
-                          recordings=recordings, model_sigma=args.model_sigma)
-    return format_real_bench(rows)
+                          recordings=recordings, model_sigma=args.model_sigma, fps=args.fps)
+    rate = ("at the recordings' own sample times" if args.fps is None
+            else f"at {args.fps:g} frames a second (interpolated)")
+    return f"replayed {rate}\n" + format_real_bench(rows)
