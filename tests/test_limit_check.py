@@ -18,10 +18,12 @@ from apcc_graph.estimation.limit_check import (
     LimitWarning,
     at_the_limits,
     flag_misfits,
+    wrong_basin,
 )
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.model_fit import CameraFit, ModelFit
 from apcc_graph.estimation.options import GraphOptions
+from apcc_graph.estimation.start_search import UnknownStartError
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.robot import Robot
 from apcc_graph.simulation.simulator import simulate
@@ -99,3 +101,38 @@ def test_the_exact_model_on_real_motion_is_flagged() -> None:
                        graph=GraphOptions(model_sigma=None))
         assert bool((est.status == MISFIT).any()) == flags, est.model_fit
         assert (est.model_fit is not None and not est.model_fit.explained) == flags
+
+
+def test_an_unknown_start_that_ends_at_the_limits_is_a_wrong_basin(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """:func:`wrong_basin` names a segment at its limit in more than a tenth of the frames and
+    nothing below that; from a start found in the images, :func:`estimate` raises
+    :class:`UnknownStartError` with it (the estimator's answer replaced by one at the limit),
+    and with a given start it keeps the answer, flagged."""
+    import apcc_graph.estimation.methods as methods
+
+    sim = simulate(load_robot(ROBOT_FILE), 20, noise_px=1.0, seed=4, fps=FPS, n_points=800)
+    seq = sim.sequence
+    est = estimate(seq, method="chain", theta0=seq.thetas[0])
+    status = est.status.copy()
+    status[:2, 1] = AT_LIMIT  # 10%: not more
+    assert wrong_basin(replace(est, status=status)) is None
+    status[:3, 1] = AT_LIMIT
+    why = wrong_basin(replace(est, status=status))
+    assert why is not None and "segment 2 in 15% of the frames" in why
+    limit = seq.robot.segments[0].theta_max
+    original = methods._run
+
+    def at_the_limit(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        found = original(*args, **kwargs)
+        thetas = found.thetas.copy()
+        thetas[:, 0] = limit
+        return replace(found, thetas=thetas)
+
+    monkeypatch.setattr(methods, "_run", at_the_limit)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(UnknownStartError, match="segment 1 in 100% of the frames"):
+            estimate(seq, method="chain")
+        kept = estimate(seq, method="chain", theta0=seq.thetas[0])
+    assert (kept.status[:, 0] == AT_LIMIT).all()

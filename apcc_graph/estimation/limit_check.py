@@ -32,6 +32,9 @@ AT_LIMIT = "at-limit"
 """The status of a bend within the margin of its joint limit."""
 MISFIT = "misfit"
 """The status of a bend in a frame where the residual test fails (module docstring)."""
+WRONG_BASIN_SHARE = 0.1
+"""An estimate from an unknown start with some segment at its joint limit in more than this
+share of the frames is taken for a wrong basin (:func:`wrong_basin`)."""
 
 
 class LimitWarning(UserWarning):
@@ -71,3 +74,22 @@ def flag_misfits(result: Estimate, fit: ModelFit) -> Estimate:
         flagged[:len(frames), :camera.camera + 1] |= frames[:len(flagged), None]
     status = np.where(flagged & (result.status != AT_LIMIT), MISFIT, result.status)
     return replace(result, status=status)
+
+
+def wrong_basin(result: Estimate) -> str | None:
+    """Why an estimate from a start found in the images sits in a wrong basin, or ``None``.
+
+    A segment at its joint limit in more than :data:`WRONG_BASIN_SHARE` of the frames: the
+    images pulled it past what the robot bends, which from a start the search found means the
+    search picked the wrong start (on a real robot's struck recording, from an unknown start
+    the batch held segment 1 at its 120 deg limit in 137 of 139 frames, its tips 204 / 342 mm
+    off, where a given start put them 0.9 / 2.1 mm off). The caller raises
+    :class:`~apcc_graph.estimation.start_search.UnknownStartError` with it.
+    """
+    share = np.mean(result.status == AT_LIMIT, axis=0)
+    bad = [j for j, s in enumerate(share) if s > WRONG_BASIN_SHARE]
+    if not bad:
+        return None
+    named = ", ".join(f"segment {j + 1} in {100 * share[j]:.0f}% of the frames" for j in bad)
+    return (f"{result.method}: from the start found in the images the bends end at their joint "
+            f"limits ({named}): a wrong start; pass the starting configuration (theta0)")

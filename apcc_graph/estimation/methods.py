@@ -11,7 +11,7 @@ from os import PathLike
 import numpy as np
 from numpy.typing import ArrayLike
 
-from apcc_graph.estimation.limit_check import at_the_limits, flag_misfits
+from apcc_graph.estimation.limit_check import at_the_limits, flag_misfits, wrong_basin
 from apcc_graph.estimation.model_fit import ModelFit
 from apcc_graph.estimation.model_noise import ROBOT
 from apcc_graph.estimation.observation_checks import (  # noqa: F401 - part of this API
@@ -84,7 +84,9 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
             ``theta_max`` (radians); a sequence without a single observation;
             ``theta0_sigma`` or ``psi0`` without ``theta0``; ``psi0`` without ``spatial``.
         UnknownStartError: (a ``ValueError``) no ``theta0``, and the recording never tells
-            the start (the robot never moved enough; the message says which segment).
+            the start (the robot never moved enough; the message says which segment), or the
+            start it told led the bends to their joint limits (a wrong basin:
+            :func:`~apcc_graph.estimation.limit_check.wrong_basin`).
 
     Warns:
         ObservationWarning: a camera observed nothing in the whole sequence, or fewer than
@@ -126,6 +128,10 @@ def estimate(sequence: Sequence, method: str = "batch", theta0: ArrayLike | None
         graph = replace(graph, theta0_sigma=float(theta0_sigma))
     result = _run(sequence, theta0, psi0, spatial, graph, robustness, settings, progress)
     result = at_the_limits(result, graph.limit_sigma)
+    if start is not None and (why := wrong_basin(result)) is not None:
+        from apcc_graph.estimation.start_search import UnknownStartError
+
+        raise UnknownStartError(why)
     if method != "chain" and robustness.misfit_alarm is not None:
         fit = _model_fit(sequence, result, graph, robustness, theta0, psi0)
         result = flag_misfits(replace(result, model_fit=fit), fit)
