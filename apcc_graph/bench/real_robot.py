@@ -96,6 +96,12 @@ MIN_STRETCH = 2.0
 BOUND_STEP = 20
 """Frames between the samples of the tips' bounds on the model-exact motion (each sample of the
 lag bound builds and factors one information matrix)."""
+NOISE_BOUND_LINE = (
+    "noise bound: the Cramer-Rao bound of the segment ends on the measured motion (every "
+    f"{BOUND_STEP}th frame) with the calibration's model error as noise, correlated along the "
+    "bends as the calibration measured it: what the images and the approximate model together "
+    "tell")
+"""The table's note on the noise bound."""
 
 
 @dataclass(frozen=True)
@@ -352,10 +358,7 @@ def format_real_bench(rows: list[RealRow]) -> str:
     lines.append("rot-floor: the model's tips at the bends whose tip rotations best fit the "
                  "measured ones (what tip cameras measure well): the camera-based yardstick")
     if any(r.method == "noise bound" for r in rows):
-        lines.append("noise bound: the Cramer-Rao bound of the segment ends on the measured "
-                     f"motion (every {BOUND_STEP}th frame) with the calibration's model error "
-                     "as noise, correlated along the bends as the calibration measured it: "
-                     "what the images and the approximate model together tell")
+        lines.append(NOISE_BOUND_LINE)
     if any(r.method == "bound" for r in rows):
         lines.append("bound, lag bound: the Cramer-Rao bound of the tips on the model-exact "
                      f"motion (every {BOUND_STEP}th frame), of the whole stretch and of a "

@@ -13,9 +13,10 @@ Where the residual test fails (:mod:`~apcc_graph.estimation.model_fit`: the mode
 of the observations the images alone accept), :func:`flag_misfits` marks the frames where it
 fails ``"misfit"``: each failing camera's frames whose own share of rejected observations is
 above the alarm, for the camera's segment and every segment below it (they all place that
-camera). Their sigmas describe the pixel noise, not what the model leaves unexplained; the
-status says so frame by frame, and the :class:`~apcc_graph.estimation.model_fit.
-ModelFitWarning` says it for the whole estimate.
+camera), where their status was ``"ok"`` (a status that already says something, such as
+``"reacquired"`` or ``"at-limit"``, is kept). Their sigmas describe the pixel noise, not what
+the model leaves unexplained; the status says so frame by frame, and the
+:class:`~apcc_graph.estimation.model_fit.ModelFitWarning` says it for the whole estimate.
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ def at_the_limits(result: Estimate, margin: float) -> Estimate:
 
 def flag_misfits(result: Estimate, fit: ModelFit) -> Estimate:
     """``result`` with the frames where ``fit`` fails marked :data:`MISFIT` (module docstring;
-    a bend already :data:`AT_LIMIT` keeps that); the same object when the test passes."""
+    only bends whose status was ``"ok"``); the same object when the test passes."""
     failing = fit.failing()
     if not failing:
         return result
@@ -72,7 +73,7 @@ def flag_misfits(result: Estimate, fit: ModelFit) -> Estimate:
         shares = camera.frame_shares
         frames = np.isfinite(shares) & (shares > fit.alarm)
         flagged[:len(frames), :camera.camera + 1] |= frames[:len(flagged), None]
-    status = np.where(flagged & (result.status != AT_LIMIT), MISFIT, result.status)
+    status = np.where(flagged & (result.status == "ok"), MISFIT, result.status)
     return replace(result, status=status)
 
 
