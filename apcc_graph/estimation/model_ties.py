@@ -54,7 +54,7 @@ class ModelTies:
                  correlations: Sequence[float]) -> None:
         self.bending = bending
         self.noise = [tie_sigmas(tuple(sigmas), j) for j in range(bending.n_segments)]
-        self.correlations = tuple(float(tau) for tau in correlations)
+        self.correlations = tuple(float(length) for length in correlations)
 
     def frame(self, f: int, x: FloatArray, base: FloatArray,
               previous: Previous | None) -> list[gtsam.NonlinearFactor]:
@@ -66,9 +66,9 @@ class ModelTies:
                     max(float(np.linalg.norm(np.asarray(x) - np.asarray(previous[1]))),
                         MIN_DISTANCE))
         out: list[gtsam.NonlinearFactor] = []
-        for j, (noise, tau) in enumerate(zip(self.noise, self.correlations, strict=True)):
+        for j, (noise, length) in enumerate(zip(self.noise, self.correlations, strict=True)):
             own = base if j == 0 else tip_key(f, j - 1)
-            a = 0.0 if previous is None else decay(distance, tau)
+            a = 0.0 if previous is None else decay(distance, length)
             if previous is None or a < MIN_DECAY:
                 out.append(segment_tie_factor(frame_key(f), tip_key(f, j), own, self.bending,
                                               j, noise))
