@@ -108,8 +108,7 @@ def _information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     start, column = {}, 0
     for key in keys:
         start[key] = column
-        column += values.atPoint3(key).shape[0] if kind(key) == "l" else (
-            6 if kind(key) == "t" else len(values.atVector(key)))
+        column += {"l": 3, "t": 6}.get(kind(key)) or len(values.atVector(key))
     triplets = graph.linearize(values).sparseJacobian_()
     rows, cols, data = triplets[0] - 1, triplets[1] - 1, triplets[2]
     inside = cols < column  # the last column is the right-hand side
