@@ -11,9 +11,10 @@ from scipy.spatial.transform import Rotation
 
 from apcc_graph.bench.smoother import FPS, ROBOT_FILE
 from apcc_graph.estimation import batch as batch_module
+from apcc_graph.estimation import blackout, start_search
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.rotation_start import chained_rotations, rotation_start
+from apcc_graph.estimation.rotation_start import chained_rotations, propagated, rotation_start
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.simulation import faults
@@ -105,3 +106,38 @@ def test_the_batch_starts_from_the_rotations_with_model_noise(sim, monkeypatch) 
     batch_estimate(seq, seq.thetas[0], marginals=False, max_iterations=2,
                    options=GraphOptions(model_sigma=(1e-3, math.radians(0.5))))
     assert used == ["chain", "rotations"]
+
+
+def test_propagated_follows_the_model_noise(sim, monkeypatch) -> None:  # noqa: ANN001
+    """Every solver that starts from a propagated guess picks it as the batch does: the
+    rotations where the model noise says the model is off, the chain with the exact model.
+    The unknown-start search's hypotheses and a re-acquisition go through it."""
+    seq = sim.sequence.head(12)
+    bending = Bending.fixed(seq.robot.segments)
+    noisy = GraphOptions(model_sigma=(1e-3, math.radians(0.5)))
+    exact = GraphOptions(model_sigma=None)
+    np.testing.assert_array_equal(propagated(seq, seq.thetas[0], bending, noisy),
+                                  rotation_start(seq, seq.thetas[0], bending, noisy))
+    chain = batch_module.chain_vectors(seq, bending, seq.thetas[0], exact.threshold_px)[0]
+    np.testing.assert_array_equal(propagated(seq, seq.thetas[0], bending, exact), chain)
+    # Rotations and chain differ here, so the equalities above say which was taken.
+    assert np.abs(chain - rotation_start(seq, seq.thetas[0], bending)).max() > 1e-6
+
+    calls: list[bool] = []
+    real = start_search.propagated
+
+    def spy(sequence, x0, bending, options):  # noqa: ANN001, ANN202
+        calls.append(options.model_sigma is not None)
+        return real(sequence, x0, bending, options)
+
+    monkeypatch.setattr(start_search, "propagated", spy)
+    start_search.find_start(seq, options=noisy)
+    assert calls and all(calls), calls  # every hypothesis, with the estimator's model noise
+    monkeypatch.setattr(blackout, "propagated", spy)
+    calls.clear()
+    kept = blackout.Reacquisition(seq.robot, noisy, 10.0, bending, seq.thetas[0], 0.01,
+                                  search=False)
+    for f in range(seq.n_frames):
+        kept.add(f, float(seq.timestamps[f]), seq.frame(f))
+    kept.solve()
+    assert calls == [True]

@@ -39,9 +39,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from apcc_graph.estimation.batch_solve import projection_solve
-from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import Rows
+from apcc_graph.estimation.rotation_start import propagated
 from apcc_graph.estimation.start_search import find_start
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
@@ -259,7 +259,7 @@ class Reacquisition:
         sigmas = None
         if self.camera is not None:  # the search answers for the lost segment only
             theta0, sigmas = self._one_segment(theta0, spreads)
-        start, _, _ = chain_vectors(sequence, self.bending, theta0, options.threshold_px)
+        start = propagated(sequence, np.asarray(theta0, dtype=float), self.bending, options)
         found = projection_solve(sequence, start, theta0, options,
                                  Robustness(self.inlier_sigmas), bending=self.bending,
                                  start_sigmas=sigmas)

@@ -33,7 +33,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from apcc_graph.estimation.chain import chain_vectors
 from apcc_graph.estimation.graph import observed_cameras
+from apcc_graph.estimation.model_noise import approximate, segment_sigmas
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.frontend.rotation_pairs import relative_rotation
 from apcc_graph.model.arrays import FloatArray
@@ -132,6 +134,20 @@ def rotation_start(sequence: Sequence, x0: FloatArray, bending: Bending,
             targets[c] = chain[c] @ mounts[c].T
         x[f] = _fit(tip_rotations, targets, x[f - 1])
     return x
+
+
+def propagated(sequence: Sequence, x0: FloatArray, bending: Bending, options: GraphOptions
+               ) -> FloatArray:
+    """``(F, dim)`` frame vectors from ``x0`` (frame 0's) for a solver to start from: those
+    whose tip rotations fit the cameras' (:func:`rotation_start`) where ``options``' model
+    noise says the model is materially off
+    (:func:`~apcc_graph.estimation.model_noise.approximate`), else the exact model's chain
+    (:func:`~apcc_graph.estimation.chain.chain_vectors`). The rule of the batch's
+    ``init = "auto"``, for every other solver that starts from a propagated guess: the
+    unknown-start search's hypotheses and the smoother's re-acquisitions."""
+    if approximate(segment_sigmas(options.model_sigma, sequence.robot)):
+        return rotation_start(sequence, x0, bending, options)
+    return chain_vectors(sequence, bending, x0, options.threshold_px)[0]
 
 
 def _tip_rotations(bending: Bending, base: FloatArray | None, x: FloatArray) -> FloatArray:
