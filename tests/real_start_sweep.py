@@ -23,13 +23,22 @@ import numpy as np
 from apcc_graph.bench.real_robot import MIN_STRETCH
 from apcc_graph.calibration.backbone_fit import fit_backbone
 from apcc_graph.estimation.methods import estimate
+from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.start_search import UnknownStartError
 from apcc_graph.evaluation.tip_floor import tip_errors, tip_floor
 from apcc_graph.io.backbone_poses import load_backbone_poses
 from apcc_graph.io.robot_file import load_robot
+from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence
 from apcc_graph.simulation.replay import measured_ends, motion_stretches, replay_motion
 
 DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def _rms(model: Robot, seq: Sequence, est: Estimate) -> np.ndarray:
+    """``(S,)`` the RMS tip error per segment end of ``est`` (mm)."""
+    tips = model.forward(est.thetas, est.psis)
+    return tip_errors(tips, seq.truth_tips).rms_position * 1e3
 
 
 def main() -> None:
@@ -54,13 +63,9 @@ def main() -> None:
                                 seed=seed).simulation.sequence
             floor = tip_floor(model, seq.truth_tips)
 
-            def rms(est: object) -> np.ndarray:
-                tips = model.forward(est.thetas, est.psis)  # type: ignore[attr-defined]
-                return tip_errors(tips, seq.truth_tips).rms_position * 1e3
-
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                given = rms(estimate(seq, "batch", floor.thetas[0], math.radians(2.0),
+                given = _rms(model, seq, estimate(seq, "batch", floor.thetas[0], math.radians(2.0),
                                      psi0=floor.psis[0], spatial=True))
                 t0 = time.perf_counter()
                 try:
@@ -74,7 +79,7 @@ def main() -> None:
             if found is None:
                 print(f"{head} UnknownStartError ({seconds:.0f} s): {why}", flush=True)
                 continue
-            got = rms(found)
+            got = _rms(model, seq, found)
             ratio = float(np.max(got / given))
             start = ", ".join(f"{v:.1f}" for v in np.degrees(found.start.theta0))
             print(f"{head} {' / '.join(f'{v:.1f}' for v in got)} mm, {ratio:.1f}x "
