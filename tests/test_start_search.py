@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ import apcc_graph
 from apcc_graph.bench import ROBOT_FILE
 from apcc_graph.cli import main
 from apcc_graph.estimation.methods import estimate
+from apcc_graph.estimation.noise_information import start_blocks
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.start_search import (
     Hypothesis,
@@ -222,3 +224,23 @@ def test_the_unknown_start_on_real_motion_is_refused_not_wrong() -> None:
     _, exact, _, _ = fast_stretch_replay(18, exact=True)
     search = find_start(exact, spatial=True)
     assert "does not explain" not in search.reason, search.reason
+
+
+def test_with_a_model_error_the_sigmas_are_the_images_and_the_models(
+        one_second: Simulation) -> None:
+    """With a model error as noise (here 5 mm / 3 deg, far more than the model-exact recording
+    has) the search's sigmas of frame 0 are those of the information with that noise at its
+    winner (:func:`start_blocks`), larger than the exact model's on every segment; past the
+    bar the search is undetermined, and says the model's error may be why."""
+    seq = one_second.sequence
+    exact = find_start(seq, options=replace(OPTIONS, model_sigma=None))
+    noisy_options = replace(OPTIONS, model_sigma=(5e-3, math.radians(3.0)))
+    noisy = find_start(seq, options=noisy_options)
+    # The same basin (the noisy search's hypotheses are propagated by the rotations).
+    np.testing.assert_allclose(noisy.x0, exact.x0, atol=math.radians(2.0))
+    blocks = start_blocks(seq, noisy.hypotheses[0].x, noisy.bending, noisy_options, 3.5,
+                          math.radians(30.0))
+    np.testing.assert_allclose(noisy.sigma0, np.sqrt(blocks[:, 0, 0]), rtol=1e-9)
+    assert np.all(noisy.sigma0 > exact.sigma0), (noisy.sigma0, exact.sigma0)
+    tight = find_start(seq, options=noisy_options, max_sigma=0.5 * float(noisy.sigma0.max()))
+    assert not tight.determined and "the model's error" in tight.reason, tight.reason

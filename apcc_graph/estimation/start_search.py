@@ -55,6 +55,8 @@ from apcc_graph.estimation.batch_solve import build_terms, projection_solve
 from apcc_graph.estimation.bends import parameterisation
 from apcc_graph.estimation.graph import CameraTerms
 from apcc_graph.estimation.model_fit import check_model_fit
+from apcc_graph.estimation.model_noise import approximate, segment_sigmas
+from apcc_graph.estimation.noise_information import start_blocks
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.result import StartReport
 from apcc_graph.estimation.rotation_start import propagated
@@ -235,14 +237,32 @@ def find_start(sequence: Sequence, seconds: float = START_SECONDS,
     robustness = Robustness() if robustness is None else robustness
     refined = sorted((_refine(window, bending, start, options, robustness, terms, model)
                       for start in start_hypotheses(bending)), key=lambda h: h.cost)
-    reason = (_undetermined(window, bending, refined, max_sigma, ambiguity)
+    noisy = approximate(segment_sigmas(model.model_sigma, sequence.robot))
+    if noisy:  # the winner's sigmas with the model's error as noise
+        refined[0] = _with_model_noise(window, bending, refined[0], model, robustness,
+                                       prior_sigma)
+    reason = (_undetermined(window, bending, refined, max_sigma, ambiguity, noisy)
               or _not_the_images(window, bending, refined[0], options, robustness))
     return StartSearch(window.n_frames, span, tuple(refined), not reason, reason, bending)
 
 
+def _with_model_noise(window: Sequence, bending: Bending, best: Hypothesis,
+                      model: GraphOptions, robustness: Robustness, prior_sigma: float
+                      ) -> Hypothesis:
+    """``best`` with frame 0's covariance blocks those of the information at its frame
+    vectors with the model's error as noise (``model``'s; module docstring, step 4;
+    :func:`~apcc_graph.estimation.noise_information.start_blocks`), NaN where that
+    information is singular."""
+    found = start_blocks(window, best.x, bending, model, robustness.inlier_sigmas, prior_sigma)
+    blocks = best.blocks.copy()
+    blocks[0] = np.nan if found is None else found
+    return replace(best, blocks=blocks)
+
+
 def _undetermined(window: Sequence, bending: Bending, refined: list[Hypothesis],
-                  max_sigma: float, ambiguity: float) -> str:
-    """Why the window does not tell the start ('' when it does)."""
+                  max_sigma: float, ambiguity: float, noisy: bool = False) -> str:
+    """Why the window does not tell the start ('' when it does; ``noisy``: the winner's
+    sigmas are with the model's error as noise)."""
     best = refined[0]
     sigma0 = bending.spreads(best.blocks[0])
     span = float(window.timestamps[-1] - window.timestamps[0])
@@ -257,7 +277,8 @@ def _undetermined(window: Sequence, bending: Bending, refined: list[Hypothesis],
         shown = "; ".join(f"segment {j + 1}: sigma {sigma_text[j]}, moved {moved[j]:.1f} deg"
                           for j in open_)
         why = (f"cameras with too few observations: {', '.join(few)}" if few else
-               "the robot barely moved")
+               "the robot barely moved, or too little for the model's error (the robot "
+               "file's) to leave it told" if noisy else "the robot barely moved")
         return (f"the first {span:.2f} s do not tell the start ({shown}; limit "
                 f"{math.degrees(max_sigma):.1f} deg): {why}")
     for other in refined[1:]:

@@ -31,7 +31,8 @@ graph as indeterminate when a point is seen from nearly one place (a robot at re
 weak prior fixes its depth, a condition number of about 1e8 in its block). Each point's 3 x 3
 block of the information matrix is eliminated exactly (a Schur complement; the far points' rays
 still tell the tips' rotations), and the reduced sparse system over the frame vectors and the
-tips is factored once (LU) and solved for the sampled tips' translation columns.
+tips is factored once (LU) and solved for the sampled tips' translation columns
+(:mod:`apcc_graph.estimation.noise_information`, which the unknown-start search shares).
 """
 
 from __future__ import annotations
@@ -40,13 +41,10 @@ import math
 
 import gtsam
 import numpy as np
-import scipy.sparse
-import scipy.sparse.linalg
 
-from apcc_graph.estimation.model_ties import ModelTies
-from apcc_graph.estimation.terms.noisy import POINT_PRIOR_SIGMA
+from apcc_graph.estimation.noise_information import POSE_SIZE, marginal_columns, noise_graph
 from apcc_graph.evaluation.tip_bound import TipBound
-from apcc_graph.factors.keys import frame_key, kind, point_key, tip_key
+from apcc_graph.factors.keys import tip_key
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.simulation.simulator import Simulation
@@ -56,82 +54,25 @@ def model_noise_graph(simulation: Simulation, vectors: FloatArray, bending: Bend
                       sigmas: tuple[tuple[float, float], ...], noise_px: float,
                       theta0_sigma: float | None, correlations: tuple[float, ...] = ()
                       ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
-    """The model-noise graph at the truth (module docstring): ``vectors`` ``(F, dim)`` the
-    frame vectors, ``sigmas`` per segment (position m, rotation rad), ``correlations`` per
+    """The model-noise graph at the truth (module docstring;
+    :func:`~apcc_graph.estimation.noise_information.noise_graph`): ``vectors`` ``(F, dim)``
+    the frame vectors, ``sigmas`` per segment (position m, rotation rad), ``correlations`` per
     segment the model error's correlation length in bend (radians; empty or 0: independent
     per frame)."""
     seq = simulation.sequence
     robot = seq.robot
-    base = np.eye(4) if seq.world_T_base is None else np.asarray(seq.world_T_base)
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    ties = ModelTies(bending, sigmas, correlations or (0.0,) * robot.n_segments)
-    vectors = np.asarray(vectors, dtype=float)
-    for f, x in enumerate(vectors):
-        values.insert(frame_key(f), x)
-        for j in range(robot.n_segments):
-            values.insert(tip_key(f, j), gtsam.Pose3(simulation.world_T_tip[f, j]))
-        for factor in ties.frame(f, x, base, None if f == 0 else (f - 1, vectors[f - 1], base)):
-            graph.add(factor)
-    if theta0_sigma is not None:
-        graph.add(gtsam.PriorFactorVector(frame_key(0), np.asarray(vectors[0], dtype=float),
-                                          gtsam.noiseModel.Isotropic.Sigma(bending.dim,
-                                                                           theta0_sigma)))
-    pixel = gtsam.noiseModel.Isotropic.Sigma(2, noise_px)
-    weak = gtsam.noiseModel.Isotropic.Sigma(3, POINT_PRIOR_SIGMA)
+    rows = {}
     for cam in robot.camera_segments:
-        camera = robot.cameras[cam]
-        assert camera is not None
-        K = gtsam.Cal3_S2(camera.fx, camera.fy, 0.0, camera.cx, camera.cy)
-        body = gtsam.Pose3(camera.tip_T_cam)
         tracks = seq.tracks[cam]
         keep = ~simulation.outliers[cam]
-        marks = simulation.landmarks[cam]
         ids, track = np.unique(tracks.track_ids, return_inverse=True)
         seen = np.bincount(track[keep], minlength=len(ids))
-        for row in np.flatnonzero(keep & (seen[track] >= 2)).tolist():
-            point = point_key(cam, int(track[row]))  # a point per track, as the estimators
-            if not values.exists(point):
-                values.insert(point, simulation.points_world[marks[row]])
-                graph.add(gtsam.PriorFactorPoint3(point, simulation.points_world[marks[row]],
-                                                  weak))
-            graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                simulation.clean_uv[cam][row], pixel, tip_key(int(tracks.frames[row]), cam),
-                point, K, body))
-    return graph, values
-
-
-def _information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
-                 ) -> tuple[scipy.sparse.csc_matrix, dict[int, int], list[int]]:
-    """The Fisher information ``J^T J`` of ``graph`` at ``values`` (sparse), the first column
-    of each key, and the columns of the points."""
-    keys = sorted(values.keys())  # gtsam's sparse Jacobian orders the keys so
-    start, column = {}, 0
-    for key in keys:
-        start[key] = column
-        column += {"l": 3, "t": 6}.get(kind(key)) or len(values.atVector(key))
-    triplets = graph.linearize(values).sparseJacobian_()
-    rows, cols, data = triplets[0] - 1, triplets[1] - 1, triplets[2]
-    inside = cols < column  # the last column is the right-hand side
-    J = scipy.sparse.csc_matrix((data[inside], (rows[inside].astype(np.int64),
-                                                cols[inside].astype(np.int64))),
-                                shape=(int(rows.max()) + 1, column))
-    points = [c for key in keys if kind(key) == "l" for c in range(start[key], start[key] + 3)]
-    return (J.T @ J).tocsc(), start, points
-
-
-def _reduced(H: scipy.sparse.csc_matrix, points: list[int]
-             ) -> tuple[scipy.sparse.csc_matrix, np.ndarray]:
-    """The information of every variable but the points, the points eliminated (their blocks
-    are 3 x 3 and independent), and the kept columns."""
-    keep = np.setdiff1d(np.arange(H.shape[0]), points)
-    if not points:
-        return H, keep
-    P = np.asarray(points).reshape(-1, 3)
-    blocks = np.stack([H[p][:, p].toarray() for p in P])
-    inverse = scipy.sparse.block_diag(list(np.linalg.inv(blocks)), format="csc")
-    flat = P.ravel()
-    H_xp = H[keep][:, flat]
-    return (H[keep][:, keep] - H_xp @ inverse @ H_xp.T).tocsc(), keep
+        kept = keep & (seen[track] >= 2)  # a point per track, as the estimators keep them
+        rows[cam] = (tracks.frames[kept], track[kept],
+                     simulation.points_world[simulation.landmarks[cam][kept]])
+    return noise_graph(robot, seq.world_T_base, vectors, simulation.world_T_tip, bending,
+                       sigmas, noise_px, theta0_sigma,
+                       correlations or (0.0,) * robot.n_segments, rows)
 
 
 def model_noise_tip_bound(simulation: Simulation, vectors: FloatArray, bending: Bending,
@@ -158,21 +99,14 @@ def model_noise_tip_bound(simulation: Simulation, vectors: FloatArray, bending: 
                                       theta0_sigma, correlations)
     frames = np.arange(0, simulation.sequence.n_frames, step, dtype=np.int64)
     S = simulation.sequence.n_segments
-    H, start, points = _information(graph, values)
-    reduced, keep = _reduced(H, points)
-    where = np.full(H.shape[0], -1)
-    where[keep] = np.arange(len(keep))
-    wanted = [(i, j, where[start[tip_key(f, j)] + 3 + np.arange(3)])
-              for i, f in enumerate(frames.tolist()) for j in range(S)]
-    rhs = np.zeros((len(keep), 3 * len(wanted)))
-    for n, (_, _, cols) in enumerate(wanted):
-        rhs[cols, 3 * n + np.arange(3)] = 1.0
     out = np.full((len(frames), S), math.inf)
-    try:
-        solved = scipy.sparse.linalg.splu(reduced).solve(rhs)
-    except RuntimeError:  # singular: some unknown is undetermined
+    translation = POSE_SIZE // 2 + np.arange(3)  # a pose's tangent: rotation, then translation
+    found = marginal_columns(graph, values, [(tip_key(int(f), j), translation)
+                                             for f in frames for j in range(S)])
+    if found is None:  # singular: some unknown is undetermined
         return TipBound(frames, out, None)
-    for n, (i, j, cols) in enumerate(wanted):
-        variance = float(np.trace(solved[cols, 3 * n:3 * n + 3]))
-        out[i, j] = math.sqrt(variance) if math.isfinite(variance) and variance >= 0 else math.inf
+    for n, block in enumerate(found):
+        variance = float(np.trace(block))
+        out[n // S, n % S] = (math.sqrt(variance) if math.isfinite(variance) and variance >= 0
+                              else math.inf)
     return TipBound(frames, out, None)
