@@ -56,18 +56,44 @@ def factor_hessian(factor: gtsam.NonlinearFactor, values: gtsam.Values
 def slow_recording_calibrated():  # -> (calibrated Robot, MeasuredEnds)
     """The shipped slow real-robot recording's calibrated model and measured segment ends
     (the calibration takes seconds: computed once per test process)."""
+    return recording_calibrated("slow_free_space")
+
+
+@cache
+def recording_calibrated(recording: str):  # -> (calibrated Robot, MeasuredEnds)
+    """A shipped real-robot recording's (a folder of ``data/real_tdcr``) calibrated model,
+    its model error in its segments, and measured segment ends, as ``apcc-graph bench real``
+    calibrates."""
     from apcc_graph.calibration.backbone_fit import fit_backbone
     from apcc_graph.io import load_robot
     from apcc_graph.io.backbone_poses import load_backbone_poses
     from apcc_graph.simulation.replay import measured_ends
 
     robot = load_robot(ROOT / "data" / "robots" / "real_tdcr.toml")
-    poses = load_backbone_poses(ROOT / "data" / "real_tdcr" / "slow_free_space"
-                                / "backbone_poses.csv")
+    poses = load_backbone_poses(ROOT / "data" / "real_tdcr" / recording / "backbone_poses.csv")
     cal = fit_backbone(poses, robot)
     model = cal.robot(robot)
     markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
     return model, measured_ends(poses, model, markers)
+
+
+def replayed_stretches(recording: str, seeds: list[int], stretches: list[int] | None = None):
+    """Per seed and stretch of at least the benchmark's 2 s (``stretches``: only these,
+    0-based), ``(model, seed, stretch, sequence, floor)``: the real motion replayed as
+    ``apcc-graph bench real`` does (1 px, 10% outliers, the seed's room) and the floor over
+    it; for the sweeps ``tests/real_*_sweep.py``."""
+    from apcc_graph.bench.real_robot import MIN_STRETCH
+    from apcc_graph.evaluation.tip_floor import tip_floor
+    from apcc_graph.simulation.replay import motion_stretches, replay_motion
+
+    model, ends = recording_calibrated(recording)
+    kept = [k for k, (a, b, _) in enumerate(motion_stretches(ends)) if b - a >= MIN_STRETCH
+            and (stretches is None or k in stretches)]
+    for seed in seeds:
+        for k in kept:
+            seq = replay_motion(model, ends, stretch=k, noise_px=1.0, outlier_fraction=0.1,
+                                seed=seed).simulation.sequence
+            yield model, seed, k, seq, tip_floor(model, seq.truth_tips)
 
 
 @cache

@@ -16,23 +16,16 @@ import argparse
 import math
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
+from helpers import replayed_stretches
 
-from apcc_graph.bench.real_robot import MIN_STRETCH
-from apcc_graph.calibration.backbone_fit import fit_backbone
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.result import Estimate
 from apcc_graph.estimation.start_search import UnknownStartError
-from apcc_graph.evaluation.tip_floor import tip_errors, tip_floor
-from apcc_graph.io.backbone_poses import load_backbone_poses
-from apcc_graph.io.robot_file import load_robot
+from apcc_graph.evaluation.tip_floor import tip_errors
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
-from apcc_graph.simulation.replay import measured_ends, motion_stretches, replay_motion
-
-DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 def _rms(model: Robot, seq: Sequence, est: Estimate) -> np.ndarray:
@@ -49,43 +42,30 @@ def main() -> None:
     parser.add_argument("--stretches", type=int, nargs="+", default=None,
                         help="only these stretches (0-based; default: every one of 2 s)")
     args = parser.parse_args()
-    poses = load_backbone_poses(DATA / "real_tdcr" / args.recording / "backbone_poses.csv")
-    robot = load_robot(DATA / "robots" / "real_tdcr.toml")
-    cal = fit_backbone(poses, robot)
-    model = cal.robot(robot)
-    markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
-    ends = measured_ends(poses, model, markers)
-    kept = [k for k, (a, b, _) in enumerate(motion_stretches(ends)) if b - a >= MIN_STRETCH
-            and (args.stretches is None or k in args.stretches)]
-    for seed in args.seeds:
-        for k in kept:
-            seq = replay_motion(model, ends, stretch=k, noise_px=1.0, outlier_fraction=0.1,
-                                seed=seed).simulation.sequence
-            floor = tip_floor(model, seq.truth_tips)
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                given = _rms(model, seq, estimate(seq, "batch", floor.thetas[0], math.radians(2.0),
-                                     psi0=floor.psis[0], spatial=True))
-                t0 = time.perf_counter()
-                try:
-                    found = estimate(seq, "batch", spatial=True)
-                except UnknownStartError as error:
-                    found, why = None, str(error)
-            seconds = time.perf_counter() - t0
-            text = " / ".join(f"{v:.1f}" for v in given)
-            head = (f"{args.recording} seed {seed} stretch {k} ({seq.n_frames} frames): "
-                    f"given {text} mm; unknown")
-            if found is None:
-                print(f"{head} UnknownStartError ({seconds:.0f} s): {why}", flush=True)
-                continue
-            got = _rms(model, seq, found)
-            ratio = float(np.max(got / given))
-            start = ", ".join(f"{v:.1f}" for v in np.degrees(found.start.theta0))
-            print(f"{head} {' / '.join(f'{v:.1f}' for v in got)} mm, {ratio:.1f}x "
-                  f"({'ok' if ratio <= 2.0 else 'WRONG'}; start {start} deg, floor "
-                  f"{', '.join(f'{v:.1f}' for v in np.degrees(floor.thetas[0]))} deg; "
-                  f"{seconds:.0f} s)", flush=True)
+    for model, seed, k, seq, floor in replayed_stretches(args.recording, args.seeds,
+                                                          args.stretches):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            given = _rms(model, seq, estimate(seq, "batch", floor.thetas[0], math.radians(2.0),
+                                              psi0=floor.psis[0], spatial=True))
+            t0 = time.perf_counter()
+            try:
+                found, why = estimate(seq, "batch", spatial=True), ""
+            except UnknownStartError as error:
+                found, why = None, str(error)
+        seconds = time.perf_counter() - t0
+        head = (f"{args.recording} seed {seed} stretch {k} ({seq.n_frames} frames): given "
+                f"{' / '.join(f'{v:.1f}' for v in given)} mm; unknown")
+        if found is None:
+            print(f"{head} UnknownStartError ({seconds:.0f} s): {why}", flush=True)
+            continue
+        got = _rms(model, seq, found)
+        ratio = float(np.max(got / given))
+        start = ", ".join(f"{v:.1f}" for v in np.degrees(found.start.theta0))
+        print(f"{head} {' / '.join(f'{v:.1f}' for v in got)} mm, {ratio:.1f}x "
+              f"({'ok' if ratio <= 2.0 else 'WRONG'}; start {start} deg, floor "
+              f"{', '.join(f'{v:.1f}' for v in np.degrees(floor.thetas[0]))} deg; "
+              f"{seconds:.0f} s)", flush=True)
 
 
 if __name__ == "__main__":

@@ -16,20 +16,14 @@ from __future__ import annotations
 import argparse
 import math
 import warnings
-from pathlib import Path
 
-from apcc_graph.bench.real_robot import MIN_STRETCH
-from apcc_graph.calibration.backbone_fit import fit_backbone
+from helpers import replayed_stretches
+
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.evaluation.tip_floor import tip_errors, tip_floor
-from apcc_graph.io.backbone_poses import load_backbone_poses
-from apcc_graph.io.robot_file import load_robot
+from apcc_graph.evaluation.tip_floor import tip_errors
 from apcc_graph.model.parameterisation import Bending
-from apcc_graph.simulation.replay import measured_ends, motion_stretches, replay_motion
-
-DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 def main() -> None:
@@ -45,39 +39,29 @@ def main() -> None:
     args = parser.parse_args()
     if args.start == "floor" and args.method != "batch":
         parser.error("--start floor is for the batch")
-    poses = load_backbone_poses(DATA / "real_tdcr" / args.recording / "backbone_poses.csv")
-    cal = fit_backbone(poses, load_robot(DATA / "robots" / "real_tdcr.toml"))
-    model = cal.robot(load_robot(DATA / "robots" / "real_tdcr.toml"))
-    markers = dict(zip(cal.marker_arclengths.tolist(), cal.backbone_T_marker, strict=True))
-    ends = measured_ends(poses, model, markers)
-    kept = [k for k, (a, b, _) in enumerate(motion_stretches(ends)) if b - a >= MIN_STRETCH
-            and (args.stretches is None or k in args.stretches)]
-    for seed in args.seeds:
-        for k in kept:
-            seq = replay_motion(model, ends, stretch=k, noise_px=1.0, outlier_fraction=0.1,
-                                seed=seed).simulation.sequence
-            floor = tip_floor(model, seq.truth_tips)
-            out = {}
-            for name, correlation in (("independent", 0.0), ("drifting", "robot")):
-                graph = GraphOptions(model_correlation=correlation,
-                                     theta0_sigma=math.radians(2.0))
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    if args.start == "floor":
-                        bending = Bending.free(model.segments)
-                        est = batch_estimate(seq, floor.thetas[0], psi0=floor.psis[0],
-                                             spatial=True, marginals=False, options=graph,
-                                             initial=bending.vector(floor.thetas, floor.psis))
-                    else:
-                        est = estimate(seq, method=args.method, theta0=floor.thetas[0],
-                                       psi0=floor.psis[0], spatial=True,
-                                       theta0_sigma=math.radians(2.0), graph=graph)
-                rms = tip_errors(model.forward(est.thetas, est.psis),
-                                 seq.truth_tips).rms_position * 1e3
-                out[name] = " / ".join(f"{v:.1f}" for v in rms)
-            print(f"{args.recording} seed {seed} stretch {k} ({seq.n_frames} frames) "
-                  f"{args.method}: independent {out['independent']} mm, drifting "
-                  f"{out['drifting']} mm", flush=True)
+    for model, seed, k, seq, floor in replayed_stretches(args.recording, args.seeds,
+                                                          args.stretches):
+        out = {}
+        for name, correlation in (("independent", 0.0), ("drifting", "robot")):
+            graph = GraphOptions(model_correlation=correlation,
+                                 theta0_sigma=math.radians(2.0))
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                if args.start == "floor":
+                    bending = Bending.free(model.segments)
+                    est = batch_estimate(seq, floor.thetas[0], psi0=floor.psis[0],
+                                         spatial=True, marginals=False, options=graph,
+                                         initial=bending.vector(floor.thetas, floor.psis))
+                else:
+                    est = estimate(seq, method=args.method, theta0=floor.thetas[0],
+                                   psi0=floor.psis[0], spatial=True,
+                                   theta0_sigma=math.radians(2.0), graph=graph)
+            rms = tip_errors(model.forward(est.thetas, est.psis),
+                             seq.truth_tips).rms_position * 1e3
+            out[name] = " / ".join(f"{v:.1f}" for v in rms)
+        print(f"{args.recording} seed {seed} stretch {k} ({seq.n_frames} frames) "
+              f"{args.method}: independent {out['independent']} mm, drifting "
+              f"{out['drifting']} mm", flush=True)
 
 
 if __name__ == "__main__":

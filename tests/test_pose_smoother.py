@@ -44,8 +44,10 @@ def test_model_noise_keeps_the_smoother_near_the_real_tips_where_the_exact_one_i
         ) -> None:
     model, seq, truth, floor = fast_stretch_replay(40, exact=False)
     exact, noise = (_tip_rms(model, _run(seq, floor, s), truth) for s in (None, MODEL_SIGMA))
-    # Measured: floor 1.6 / 0.6 mm, exact smoother 120 / 382 mm, with model noise 3.2 / 9.0 mm.
-    assert np.all(noise < 0.05 * exact), (noise, exact)
+    # Measured: floor 1.6 / 0.6 mm, exact smoother 36 / 136 mm, with model noise 3.7 / 9.1 mm.
+    # (The exact smoother was 122 / 390 mm while its start check could hand it the start
+    # search's answer where the model does not explain the images; the search now refuses.)
+    assert np.all(noise < 0.15 * exact), (noise, exact)
     assert noise[0] < 6e-3 and noise[1] < 15e-3, noise
 
 

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from apcc_graph.bench.smoother import FPS, ROBOT_FILE
 from apcc_graph.estimation import batch as batch_module
-from apcc_graph.estimation import blackout, start_search
+from apcc_graph.estimation import start_search
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.rotation_start import chained_rotations, propagated, rotation_start
@@ -111,7 +111,7 @@ def test_the_batch_starts_from_the_rotations_with_model_noise(sim, monkeypatch) 
 def test_propagated_follows_the_model_noise(sim, monkeypatch) -> None:  # noqa: ANN001
     """Every solver that starts from a propagated guess picks it as the batch does: the
     rotations where the model noise says the model is off, the chain with the exact model.
-    The unknown-start search's hypotheses and a re-acquisition go through it."""
+    The unknown-start search's hypotheses go through it."""
     seq = sim.sequence.head(12)
     bending = Bending.fixed(seq.robot.segments)
     noisy = GraphOptions(model_sigma=(1e-3, math.radians(0.5)))
@@ -133,11 +133,3 @@ def test_propagated_follows_the_model_noise(sim, monkeypatch) -> None:  # noqa: 
     monkeypatch.setattr(start_search, "propagated", spy)
     start_search.find_start(seq, options=noisy)
     assert calls and all(calls), calls  # every hypothesis, with the estimator's model noise
-    monkeypatch.setattr(blackout, "propagated", spy)
-    calls.clear()
-    kept = blackout.Reacquisition(seq.robot, noisy, 10.0, bending, seq.thetas[0], 0.01,
-                                  search=False)
-    for f in range(seq.n_frames):
-        kept.add(f, float(seq.timestamps[f]), seq.frame(f))
-    kept.solve()
-    assert calls == [True]
