@@ -5,11 +5,15 @@ with the robot file's model error as noise."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
+from helpers import replayed_stretches
 
 from apcc_graph.bench import ROBOT_FILE
+from apcc_graph.estimation import batch_solve
+from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.noise_information import start_blocks
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.evaluation.sequence_bound import sequence_bound
@@ -53,3 +57,29 @@ def test_a_larger_model_error_tells_less_and_none_is_the_exact_model(second: Sim
     assert np.all(np.diff(np.array(sizes), axis=0) > 0.0), sizes
     assert start_blocks(seq, seq.thetas, bending, GraphOptions(model_sigma=None), 3.5,
                         PRIOR) is None
+
+
+def test_the_model_noise_batch_has_sigmas_for_a_robot_at_rest(monkeypatch: pytest.MonkeyPatch
+                                                              ) -> None:
+    """The first 10 frames of a real replayed stretch that starts at rest (impulse_2's
+    last), the robot file's model error as noise: its points are seen from nearly one place,
+    so gtsam's marginals refuse the graph (every sigma came back NaN); the batch's sigmas
+    then come from the information with each point eliminated first: finite, positive, and
+    never above the start prior at frame 0 (the images only add information)."""
+    model, _, k, seq, floor = next(replayed_stretches("impulse_2", [0], [4]))
+    used: list[bool] = []
+    real = batch_solve._eliminated_blocks
+
+    def spy(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        used.append(True)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(batch_solve, "_eliminated_blocks", spy)
+    prior = math.radians(2.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the residual test's and the limits' warnings
+        est = estimate(seq.head(10), "batch", floor.thetas[0], prior, psi0=floor.psis[0],
+                       spatial=True)
+    assert used, "gtsam's marginals answered: the case does not test the fallback"
+    assert np.all(np.isfinite(est.sigmas)) and np.all(est.sigmas > 0.0), est.sigmas
+    assert np.all(est.sigmas[0] <= prior * (1.0 + 1e-6)), np.degrees(est.sigmas[0])
