@@ -5,7 +5,8 @@ Calibrates the robot on the recording (as ``apcc-graph bench real``; the robot f
 carries the model error), replays each stretch of at least 2 s (1 px, 10% outliers, the
 seed's room), and estimates each with the batch twice: from the floor's first configuration
 with a 2 deg prior (the given start), and with no start at all (the search). Prints per seed
-and stretch both RMS tip errors per segment end (mm) and the worse ratio of the two, or the
+and stretch both RMS tip errors per segment end (mm), the given start's mean (e / sigma)^2 of
+the bends against the floor's, and the worse ratio of the two tip errors, or the
 :class:`~apcc_graph.estimation.start_search.UnknownStartError` the search raised. The
 contract: the unknown start within 2x the given start's tip error, or the error.
 """
@@ -46,16 +47,21 @@ def main() -> None:
                                                           args.stretches):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            given = _rms(model, seq, estimate(seq, "batch", floor.thetas[0], math.radians(2.0),
-                                              psi0=floor.psis[0], spatial=True))
+            from_floor = estimate(seq, "batch", floor.thetas[0], math.radians(2.0),
+                                  psi0=floor.psis[0], spatial=True)
+            given = _rms(model, seq, from_floor)
             t0 = time.perf_counter()
             try:
                 found, why = estimate(seq, "batch", spatial=True), ""
             except UnknownStartError as error:
                 found, why = None, str(error)
         seconds = time.perf_counter() - t0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nees = np.mean((from_floor.errors(floor.thetas, floor.psis)
+                            / from_floor.bend_sigmas()) ** 2, axis=0)
         head = (f"{args.recording} seed {seed} stretch {k} ({seq.n_frames} frames): given "
-                f"{' / '.join(f'{v:.1f}' for v in given)} mm; unknown")
+                f"{' / '.join(f'{v:.1f}' for v in given)} mm (mean (e/sigma)^2 of the bends "
+                f"{' / '.join(f'{v:.2f}' for v in nees)}); unknown")
         if found is None:
             print(f"{head} UnknownStartError ({seconds:.0f} s): {why}", flush=True)
             continue
