@@ -31,12 +31,13 @@ from apcc_graph.estimation.graph import camera_chain, observed_cameras
 from apcc_graph.estimation.model_noise import segment_correlations, segment_sigmas
 from apcc_graph.estimation.model_ties import ModelTies
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.terms.noisy import POINT_PRIOR_SIGMA
+from apcc_graph.estimation.terms.noisy import POINT_PRIOR_SIGMA, forward_tips
 from apcc_graph.factors.keys import frame_key, kind, point_key, tip_key
 from apcc_graph.factors.reduced_system import robust_residual_norms
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
+from apcc_graph.model.sequence import Sequence
 
 POINT_SIZE = 3
 """A point's tangent size."""
@@ -166,27 +167,23 @@ def marginal_columns(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     return [solved[cols][:, first[n]:first[n + 1]] for n, cols in enumerate(columns)]
 
 
-def start_blocks(window: object, x: FloatArray, bending: Bending, options: GraphOptions,
+def start_blocks(window: Sequence, x: FloatArray, bending: Bending, options: GraphOptions,
                  inlier_sigmas: float, prior_sigma: float) -> FloatArray | None:
     """``(S, w, w)`` frame 0's marginal covariance blocks at the frame vectors ``x`` of
-    ``window`` (a :class:`~apcc_graph.model.sequence.Sequence`) with the model's error as
+    ``window`` with the model's error as
     noise as ``options`` say (its ``model_sigma`` and ``model_correlation``), or ``None``
     (the exact model, or a singular information). Each track's point is triangulated
     robustly at ``x``, and the observations within ``inlier_sigmas`` of it count; the start
     prior is ``prior_sigma`` (the search's weak one)."""
-    robot = window.robot  # type: ignore[attr-defined]
+    robot = window.robot
     sigmas = segment_sigmas(options.model_sigma, robot)
     if sigmas is None:
         return None
-    bases = window.world_T_base  # type: ignore[attr-defined]
-    tips = np.empty((len(x), robot.n_segments, 4, 4))
-    for f, xf in enumerate(x):
-        T = np.eye(4) if bases is None else np.asarray(bases[f], dtype=float)
-        for j in range(robot.n_segments):
-            T = T @ bending.transform(xf, j)
-            tips[f, j] = T
+    bases = window.world_T_base
+    tips = forward_tips(bending, x, np.tile(np.eye(4), (len(x), 1, 1)) if bases is None
+                        else bases)
     rows = {}
-    for obs in observed_cameras(window, options):  # type: ignore[arg-type]
+    for obs in observed_cameras(window, options):
         chain = camera_chain(robot, obs.camera, bending, bases)
         first, last = int(obs.frames.min()), int(obs.frames.max())
         norms, points = robust_residual_norms(obs, chain, x[first:last + 1], first,
