@@ -40,7 +40,7 @@ a ``Pose3`` is gtsam's, ``T . Exp(xi)`` with ``xi = (omega, v)`` in the body fra
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import gtsam
 import numpy as np
@@ -68,6 +68,30 @@ def _track_costs(norms: FloatArray, weights: FloatArray, obs: TrackObservations)
     """``(T,)`` each track's weighted cost from its rows' residual norms (``inf`` where a kept
     row's point is behind its camera)."""
     return segment_sum(weights * np.where(weights > 0.0, norms, 0.0) ** 2, obs.starts)
+
+
+def restarted_points(obs: TrackObservations, weights: FloatArray, out: ReducedSystem,
+                     fresh: Callable[[TrackObservations, FloatArray], ReducedSystem]
+                     ) -> FloatArray | None:
+    """The points of ``out`` with those of :data:`STALE` tracks triangulated afresh where that
+    lowers their cost; ``None`` when no track is stale or none got better (module docstring,
+    "Points between linearisations"). ``fresh(part, weights)``: the cost-only system of the
+    stale tracks ``part`` (rows weighted ``weights``) with points triangulated from scratch."""
+    live = weights > 0.0
+    stale_rows = live & ~(out.residuals <= STALE)
+    if not stale_rows.any():
+        return None
+    stale = np.unique(obs.tracks[stale_rows])
+    part = obs.select(stale)
+    rows = np.concatenate([np.arange(obs.starts[t], obs.starts[t + 1]) for t in stale])
+    part_weights = weights[rows]
+    found = fresh(part, part_weights)
+    points = out.points.copy()
+    before = _track_costs(out.residuals[rows], part_weights, part)
+    after = _track_costs(found.residuals, part_weights, part)
+    better = after < before
+    points[stale[better]] = found.points[better]
+    return points if better.any() else None
 
 
 def compress(H: FloatArray, g: FloatArray, cost: float) -> tuple[FloatArray, FloatArray]:
@@ -181,24 +205,9 @@ class ProjectionFactor:
 
     def _restarted_points(self, out: ReducedSystem, thetas: FloatArray,
                           chain: CameraChain) -> FloatArray | None:
-        """The points with those of :data:`STALE` tracks triangulated afresh at ``thetas``
-        where that lowers their cost; ``None`` when no track is stale (module docstring,
-        "Points between linearisations")."""
-        obs, live = self.obs, self.weights > 0.0
-        stale_rows = live & ~(out.residuals <= STALE)
-        if not stale_rows.any():
-            return None
-        stale = np.unique(obs.tracks[stale_rows])
-        part = obs.select(stale)
-        rows = np.concatenate([np.arange(obs.starts[t], obs.starts[t + 1]) for t in stale])
-        weights = self.weights[rows]
-        fresh = reduced_system(part, chain, thetas, self.first, weights, None, jacobians=False)
-        points = out.points.copy()
-        before = _track_costs(out.residuals[rows], weights, part)
-        after = _track_costs(fresh.residuals, weights, part)
-        better = after < before
-        points[stale[better]] = fresh.points[better]
-        return points if better.any() else None
+        """:func:`restarted_points` of the chunk at ``thetas``."""
+        return restarted_points(self.obs, self.weights, out, lambda part, weights: reduced_system(
+            part, chain, thetas, self.first, weights, None, jacobians=False))
 
     def residual_norms(self, thetas: FloatArray, robust: bool = False,
                        chain: CameraChain | None = None) -> FloatArray:

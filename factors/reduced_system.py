@@ -148,16 +148,35 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
     engine = resolve(engine)
     Rb, ob, dP, dC = _row_poses(chain, thetas, first, obs.frames, jacobians,
                                 jacobians and calibration, jacobians and mount, engine)
+    dX = None if dP is None else (dP if dC is None else np.concatenate([dP, dC], axis=2))
+    return reduced_at_poses(obs, Rb, ob, dX, len(thetas), None if dP is None else dP.shape[2],
+                            obs.frames - first, weights, points, refine_points,
+                            point_iterations, engine)
+
+
+def reduced_at_poses(obs: TrackObservations, Rb: FloatArray, ob: FloatArray,
+                     dX: FloatArray | None, n_frames: int, n: int | None,
+                     lf: NDArray[np.int64], weights: FloatArray,
+                     points: FloatArray | None = None, refine_points: bool = True,
+                     point_iterations: int = 10, engine: str | None = None) -> ReducedSystem:
+    """The reduced system of :func:`reduced_system` from the rows' camera poses, whatever the
+    variables they depend on: ``Rb`` ``(3, 3, N)`` and ``ob`` ``(3, N)`` each row's camera
+    orientation and position, ``dX`` ``(4, 4, n + C, N)`` the derivatives of its pose in its
+    frame's ``n`` columns, then ``C`` columns shared by the chunk (``None``: the cost and
+    residuals only); ``lf`` ``(N,)`` each row's frame, counted from the chunk's first of
+    ``n_frames``. The other arguments are :func:`reduced_system`'s."""
+    engine = resolve(engine)
+    jacobians = dX is not None
     pts = None if points is None else np.ascontiguousarray(points.T)
     if refine_points or pts is None:
         pts = triangulate_rows(obs, Rb, ob, weights, pts,
                                10 if pts is None else point_iterations, engine=engine)
     if engine == "numba" and jacobians:
-        assert dP is not None
-        dX = np.ascontiguousarray(dP if dC is None else np.concatenate([dP, dC], axis=2))
+        assert n is not None
         H, g, cost, norms = reduced_jit.reduced(
-            obs.xy_t, obs.whiten_t, obs.tracks, obs.starts, obs.frames - first, Rb, ob, dX,
-            np.ascontiguousarray(weights, dtype=float), pts, len(thetas), dP.shape[2])
+            obs.xy_t, obs.whiten_t, obs.tracks, obs.starts, np.ascontiguousarray(lf), Rb, ob,
+            np.ascontiguousarray(dX), np.ascontiguousarray(weights, dtype=float), pts,
+            n_frames, n)
         return ReducedSystem(H, g, cost, pts.T.copy(), norms)
     proj = project_rows(obs, Rb, ob, pts[:, obs.tracks])
     norms = proj.norms
@@ -166,13 +185,13 @@ def reduced_system(obs: TrackObservations, chain: CameraChain, thetas: FloatArra
     cost = float(np.sum(r * r))
     if not jacobians:
         return ReducedSystem(np.zeros((0, 0)), np.zeros(0), cost, pts.T.copy(), norms)
-    assert dP is not None
+    assert dX is not None and n is not None
+    dP, dC = dX[:, :, :n], (dX[:, :, n:] if dX.shape[2] > n else None)
     WA = proj.whitened_dm(obs.whiten_t) * sw  # (2, 3, N)
     Jp = np.einsum("ain,jin->ajn", WA, Rb)  # d r / d p = W dm/dq R^T
     Jt = _pose_jacobian(WA, Rb, dP, proj.d)  # (2, n, N)
     Jc = None if dC is None else _pose_jacobian(WA, Rb, dC, proj.d)  # (2, C, N)
-    lf = obs.frames - first
-    H, g = _normal_equations(Jt, r, lf, len(thetas), Jc)
+    H, g = _normal_equations(Jt, r, lf, n_frames, Jc)
     M, y = _point_elimination(obs, Jt, Jp, r, lf, len(H), Jc)
     H -= M @ M.T
     g -= M @ y.ravel()

@@ -114,3 +114,19 @@ def fast_stretch_replay(frames: int, exact: bool):  # -> (Robot, Sequence, truth
                             **options).simulation.sequence
     truth = seq.truth_tips[:frames]
     return model, seq.head(frames), truth, tip_floor(model, truth)
+
+
+def simulation_head(simulation, frames: int):  # -> Simulation
+    """The first ``frames`` frames of a simulation (its sequence's head, the truth and the
+    rows of those frames), for a bound over a shortened replay."""
+    import dataclasses
+
+    seq = simulation.sequence
+    keep = {c: seq.tracks[c].frames < frames for c in seq.tracks}
+    return dataclasses.replace(
+        simulation, sequence=seq.head(frames),
+        landmarks={c: v[keep[c]] for c, v in simulation.landmarks.items()},
+        clean_uv={c: v[keep[c]] for c, v in simulation.clean_uv.items()},
+        outliers={c: v[keep[c]] for c, v in simulation.outliers.items()},
+        world_T_cam={c: v[:frames] for c, v in simulation.world_T_cam.items()},
+        world_T_tip=simulation.world_T_tip[:frames])

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import fast_stretch_replay
+from helpers import fast_stretch_replay, simulation_head, slow_recording_calibrated
 from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -23,7 +23,8 @@ from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.terms.noisy import forward_tips
-from apcc_graph.evaluation.tip_floor import TipFloor, tip_errors
+from apcc_graph.evaluation.noise_bound import model_noise_tip_bound
+from apcc_graph.evaluation.tip_floor import TipFloor, tip_errors, tip_floor
 from apcc_graph.frontend.rotation_pairs import (
     draw_pairs,
     kabsch,
@@ -33,6 +34,7 @@ from apcc_graph.frontend.rotation_pairs import (
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
+from apcc_graph.simulation.replay import replay_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL_SIGMA = (1e-3, math.radians(0.5))
@@ -49,7 +51,10 @@ def _tip_rms(model: Robot, thetas: np.ndarray, psis: np.ndarray, truth: np.ndarr
     return tip_errors(model.forward(thetas, psis), truth).rms_position
 
 
-def test_model_noise_holds_the_floor_where_the_exact_model_is_driven_away() -> None:
+def test_model_noise_keeps_near_its_bound_where_the_exact_model_is_driven_away() -> None:
+    """Started at the floor's bends, the exact model is driven tens of millimetres off; with
+    the model's error as noise the batch stays within twice the Cramer-Rao bound of its tips
+    (the images and the model with that noise, over the same frames)."""
     model, seq, truth, floor = _replay(40, exact=False)
     bending = Bending.free(model.segments)
     start = bending.vector(floor.thetas, floor.psis)
@@ -60,24 +65,31 @@ def test_model_noise_holds_the_floor_where_the_exact_model_is_driven_away() -> N
                              options=GraphOptions(theta0_sigma=math.radians(2.0),
                                                   model_sigma=sigma))
         rms[label] = _tip_rms(model, est.thetas, est.psis, truth)
-    floor_rms = floor.errors.rms_position
-    # Measured: floor 1.6 / 0.6 mm, exact 86 / 276 mm, model noise 2.4 / 8.9 mm.
-    assert rms["noise"][0] < 2.0 * floor_rms[0]
+    model_, ends = slow_recording_calibrated()
+    replay = replay_motion(model_, ends, noise_px=1.0, outlier_fraction=0.1, seed=0,
+                           stretch=1).simulation
+    whole = tip_floor(model, replay.sequence.truth_tips)
+    bound = model_noise_tip_bound(simulation_head(replay, 40),
+                                  bending.vector(whole.thetas[:40], whole.psis[:40]), bending,
+                                  (MODEL_SIGMA, MODEL_SIGMA), 1.0, math.radians(2.0), 1)
+    bound_rms = np.sqrt(np.mean(bound.sigmas ** 2, axis=0))
+    # Measured: bound 4.7 / 13.5 mm, model noise 8.4 / 23.2 mm, exact 86 / 276 mm. (With each
+    # point a variable under a 10 m prior around its triangulation at the floor's tips, the
+    # batch once measured 2.4 / 8.9 mm: below the bound, the prior's knowledge of the floor.)
+    assert np.all(rms["noise"] < 2.0 * bound_rms)
     assert np.all(rms["noise"] < 0.2 * rms["exact"])
-    assert rms["noise"][1] < 0.015
 
 
-def test_small_model_noise_is_as_good_as_the_exact_batch_on_model_exact_motion() -> None:
+def test_small_model_noise_is_the_exact_batch_on_model_exact_motion() -> None:
     model, seq, truth, floor = _replay(30, exact=True)
     common = dict(theta0=floor.thetas[0], psi0=floor.psis[0], spatial=True,
                   theta0_sigma=math.radians(2.0), method="batch")
     exact = estimate(seq, graph=GraphOptions(model_sigma=None), **common)
     noise = estimate(seq, graph=GraphOptions(model_sigma=(1e-5, math.radians(1e-3))), **common)
-    # Measured: tips exact 1.5 / 4.0 mm, small model noise 0.44 / 0.99 mm; bend errors
-    # 0.14 / 0.16 deg RMS against reported sigmas of 0.16 / 0.14 deg.
+    # Measured: tips exact 1.50 / 4.00 mm, tiny model noise 1.56 / 4.16 mm; bend errors
+    # against the reported sigmas below.
     rms = _tip_rms(model, noise.thetas, noise.psis, truth)
-    assert np.all(rms < 1e-3)
-    assert np.all(rms <= 1.2 * _tip_rms(model, exact.thetas, exact.psis, truth))
+    np.testing.assert_allclose(rms, _tip_rms(model, exact.thetas, exact.psis, truth), rtol=0.1)
     errors = np.sqrt(np.mean((noise.thetas - floor.thetas) ** 2, axis=0))
     assert np.all(errors < 2.0 * np.mean(noise.sigmas, axis=0))
     assert np.all(errors > 0.3 * np.mean(noise.sigmas, axis=0))

@@ -12,7 +12,6 @@ sensor offset) and its point. Outliers are decided without the model first
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -23,9 +22,10 @@ from apcc_graph.estimation.model_noise import segment_correlations
 from apcc_graph.estimation.model_ties import ModelTies
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.robust import gnc_tls_weights
-from apcc_graph.factors.keys import frame_key, point_key, tip_key
+from apcc_graph.factors.keys import frame_key, tip_key
+from apcc_graph.factors.projection import chunk_tracks
+from apcc_graph.factors.tip_projection import TipProjectionFactor
 from apcc_graph.factors.track_points import TrackObservations
-from apcc_graph.factors.triangulation import robust_triangulate
 from apcc_graph.frontend.rotation_pairs import pair_inliers
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.parameterisation import Bending
@@ -57,27 +57,23 @@ def square_root_information(W: FloatArray) -> FloatArray:
     return np.swapaxes(np.linalg.cholesky(np.swapaxes(W, -1, -2) @ W), -1, -2)
 
 
-@dataclass
 class _Camera:
-    """One camera's observations, mount, decisions, points and residual norms."""
+    """One camera's tracks in chunks (:func:`~apcc_graph.factors.projection.chunk_tracks`),
+    each a projection factor over its tip poses with the points eliminated."""
 
-    obs: TrackObservations
-    mount: FloatArray
-    weights: FloatArray
-    points: FloatArray | None = None
-    norms: FloatArray | None = None
+    def __init__(self, obs: TrackObservations, mount: FloatArray, weights: FloatArray,
+                 frames_per_chunk: int) -> None:
+        self.obs = obs
+        self.chunks = []
+        for tracks in chunk_tracks(obs, frames_per_chunk):
+            rows = np.concatenate([np.arange(obs.starts[t], obs.starts[t + 1]) for t in tracks])
+            self.chunks.append(TipProjectionFactor(obs.select(tracks), mount, weights[rows]))
 
-    def kept(self) -> NDArray[np.bool_]:
-        """``(T,)`` the tracks with at least two inlier rows (in the graph)."""
-        return np.bincount(self.obs.tracks, self.weights > 0.0, self.obs.n_tracks) >= 2
-
-    def triangulate(self, tips: FloatArray) -> None:
-        """Every track's point at the tips, robustly (the first time from the model-free
-        decisions; then from every row, from the last points), and the residual norms."""
-        cams = tips[self.obs.frames, self.obs.camera] @ self.mount
-        weights = self.weights if self.points is None else np.ones(len(self.obs))
-        self.points, self.norms = robust_triangulate(self.obs, cams[:, :3, :3], cams[:, :3, 3],
-                                                     weights, self.points)
+    def measure(self, tips: FloatArray, robust: bool = False) -> None:
+        """Every row's residual norm at the tips ``(F, S, 4, 4)`` (``robust``: each track's
+        point found afresh from the rows its weights keep)."""
+        for c in self.chunks:
+            c.residual_norms(tips[c.first:c.last + 1, self.obs.camera], robust)
 
 
 class NoisyTerms:
@@ -109,72 +105,56 @@ class NoisyTerms:
             assert camera is not None
             bearings = np.column_stack([obs.xy, np.ones(len(obs))])
             weights = pair_inliers(obs.frames, obs.tracks, bearings).astype(float)
-            self.cameras.append(_Camera(obs, camera.tip_T_cam, weights))
-            self.cameras[-1].triangulate(self.tips)
+            self.cameras.append(_Camera(obs, camera.tip_T_cam, weights,
+                                        self.options.frames_per_chunk))
+            self.cameras[-1].measure(self.tips, robust=True)
         return [math.inf]
 
     def factors(self) -> list[gtsam.NonlinearFactor]:
         """Every frame's segment ties (each a transition from the frame before where the model
-        error drifts: :mod:`~apcc_graph.estimation.model_ties`), then each camera's inlier
-        observations (C++ projection factors) and the weak priors of their points."""
+        error drifts: :mod:`~apcc_graph.estimation.model_ties`), then each camera's projection
+        factors over its tips."""
         out: list[gtsam.NonlinearFactor] = []
         for f in range(len(self.tips)):
             previous = None if f == 0 else (f - 1, self.x[f - 1], self.bases[f - 1])
             out += self.ties.frame(f, self.x[f], self.bases[f], previous)
-        K = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
-        prior = gtsam.noiseModel.Isotropic.Sigma(3, POINT_PRIOR_SIGMA)
-        for c in self.cameras:
-            obs, body, kept = c.obs, gtsam.Pose3(c.mount), c.kept()
-            root = square_root_information(obs.whiten)
-            for k in np.flatnonzero((c.weights > 0.0) & kept[obs.tracks]).tolist():
-                noise = gtsam.noiseModel.Gaussian.SqrtInformation(
-                    root[k] * math.sqrt(c.weights[k]), False)
-                out.append(gtsam.GenericProjectionFactorCal3_S2(
-                    obs.xy[k], noise, tip_key(int(obs.frames[k]), obs.camera),
-                    point_key(obs.camera, int(obs.tracks[k])), K, body))
-            assert c.points is not None
-            out += [gtsam.PriorFactorPoint3(point_key(obs.camera, t), c.points[t], prior)
-                    for t in np.flatnonzero(kept).tolist()]
-        return out
+        return out + [chunk.factor() for c in self.cameras for chunk in c.chunks]
 
     def values(self, x: FloatArray) -> tuple[gtsam.Values, None]:
-        """The frame vectors ``x``, the tips and the points of the tracks in the graph; gtsam
-        orders them (COLAMD suits the tips and points)."""
+        """The frame vectors ``x`` and the tips; gtsam orders them."""
         values = values_from(x, range(len(x)))
         for f, tips in enumerate(self.tips):
             for j, T in enumerate(tips):
                 values.insert(tip_key(f, j), gtsam.Pose3(T))
-        for c in self.cameras:
-            assert c.points is not None
-            for t in np.flatnonzero(c.kept()).tolist():
-                values.insert(point_key(c.obs.camera, t), c.points[t])
         return values, None
 
     def measure(self, values: gtsam.Values) -> None:
-        """Take the frame vectors and the tips of the solution ``values`` and re-triangulate
-        every track there."""
+        """Take the frame vectors and the tips of the solution ``values``; every residual
+        there."""
         F, S = self.tips.shape[:2]
         self.x = np.array([values.atVector(frame_key(f)) for f in range(F)])
         self.tips = np.array([[values.atPose3(tip_key(f, j)).matrix() for j in range(S)]
                               for f in range(F)])
         for c in self.cameras:
-            c.triangulate(self.tips)
+            c.measure(self.tips)
 
     def set_weights(self, threshold: float, mu: float) -> int:
         """Decide every row by its last residual norm; returns how many rows changed side."""
         changed = 0
-        for c in self.cameras:
-            assert c.norms is not None
-            new = gnc_tls_weights(c.norms, threshold, mu)
-            changed += int(np.sum((new > 0.5) != (c.weights > 0.5)))
-            c.weights = new
+        for chunk in (chunk for c in self.cameras for chunk in c.chunks):
+            assert chunk.norms is not None
+            new = gnc_tls_weights(chunk.norms, threshold, mu)
+            changed += int(np.sum((new > 0.5) != (chunk.weights > 0.5)))
+            chunk.weights[:] = new
         return changed
 
     def decisions(self) -> tuple[NDArray[np.int64], int, int]:
         """``(F, S)`` inliers per frame and camera, outliers (weight <= 1/2), observations."""
         F, S = self.tips.shape[:2]
         inliers = np.zeros((F, S), dtype=np.int64)
-        for c in self.cameras:
-            inliers[:, c.obs.camera] = np.bincount(c.obs.frames[c.weights > 0.5], minlength=F)[:F]
-        return (inliers, int(sum(np.sum(c.weights <= 0.5) for c in self.cameras)),
+        chunks = [(c.obs.camera, chunk) for c in self.cameras for chunk in c.chunks]
+        for camera, chunk in chunks:
+            inliers[:, camera] += np.bincount(chunk.obs.frames[chunk.weights > 0.5],
+                                              minlength=F)[:F]
+        return (inliers, int(sum(np.sum(chunk.weights <= 0.5) for _, chunk in chunks)),
                 int(sum(len(c.obs) for c in self.cameras)))
