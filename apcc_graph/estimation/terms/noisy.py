@@ -3,15 +3,17 @@ pose per frame is a variable, tied to its base (the previous tip, or the robot's
 the segment's APCC transform at the frame vector with the segment's model noise
 (``GraphOptions.model_sigma``; by default the robot file's:
 :mod:`~apcc_graph.estimation.model_noise`)
-(:func:`~apcc_graph.factors.kinematic.segment_tie_factor`); each track's point is a variable
-(weak prior) and each observation a gtsam C++ projection factor on its tip (the mount as the
-sensor offset) and its point. Outliers are decided without the model first
+(:func:`~apcc_graph.factors.kinematic.segment_tie_factor`); each track's point is
+eliminated inside one factor per chunk of a camera's tracks over that camera's tips
+(:mod:`~apcc_graph.factors.tip_projection`), the tracks cut into pieces of at most
+:data:`TIP_TRACK_FRAMES` frames. Outliers are decided without the model first
 (:func:`~apcc_graph.frontend.rotation_pairs.pair_inliers`), then by residuals.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import gtsam
 import numpy as np
@@ -32,11 +34,20 @@ from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
 
-__all__ = ["POINT_PRIOR_SIGMA", "NoisyTerms", "forward_tips", "square_root_information"]
+__all__ = ["POINT_PRIOR_SIGMA", "TIP_TRACK_FRAMES", "NoisyTerms", "forward_tips",
+           "square_root_information"]
+
+TIP_TRACK_FRAMES = 30
+"""With every tip a variable, tracks are cut into pieces of at most this many frames (or
+``GraphOptions.max_track_frames`` where shorter): a piece's factor couples six unknowns per
+frame it spans, so a long piece makes the system dense in the tips. On 300 frames of a real
+replayed stretch, pieces of up to 150 frames took 92 s and pieces of up to 30 took 16 s, with
+tip errors of 2.2 / 2.0 and 2.2 / 1.6 mm (docs/estimation.md, "Model error as noise")."""
 
 POINT_PRIOR_SIGMA = 10.0
 """Standard deviation (metres) of the weak prior on each track's point around its first
-triangulation: it only holds a point whose rays are nearly parallel."""
+triangulation where a point is a variable (the smoother's model-noise window): it only holds a
+point whose rays are nearly parallel. The batch eliminates its points instead."""
 
 
 def forward_tips(bending: Bending, x: FloatArray, bases: FloatArray) -> FloatArray:
@@ -100,7 +111,10 @@ class NoisyTerms:
         self.x = np.array(x, dtype=float)
         self.tips = forward_tips(self.bending, np.asarray(x, dtype=float), self.bases)
         self.cameras = []
-        for obs in observed_cameras(sequence, self.options):
+        cut = self.options.max_track_frames
+        pieces = replace(self.options, max_track_frames=TIP_TRACK_FRAMES if cut is None
+                         else min(cut, TIP_TRACK_FRAMES))
+        for obs in observed_cameras(sequence, pieces):
             camera = self.robot.cameras[obs.camera]
             assert camera is not None
             bearings = np.column_stack([obs.xy, np.ones(len(obs))])
