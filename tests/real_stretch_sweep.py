@@ -1,5 +1,5 @@
 """The real robot's replayed motion stretch by stretch, over replay seeds, with the model
-error independent per frame (the default) and drifting along the bends:
+error independent per frame and drifting along the bends (the default):
 ``python tests/real_stretch_sweep.py impulse_2 smoother 0 1 2``.
 
 Calibrates the robot on the recording (as ``apcc-graph bench real``), replays each stretch of
@@ -8,7 +8,7 @@ configuration with a 2 deg prior, and prints per stretch the RMS tip error per s
 of both. ``--stretches 0`` picks stretches; ``--start floor`` starts the batch at the floor's
 bends of every frame instead (is a difference the start's, or the ties' optimum's?). For the
 pooled table see ``apcc-graph bench real --methods
-batch,smoother,batch-drift,smoother-drift``.
+batch,smoother,batch-independent,smoother-independent``.
 """
 
 from __future__ import annotations

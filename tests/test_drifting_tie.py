@@ -180,8 +180,8 @@ def test_the_option_and_the_robot_file() -> None:
     measured = Robot([replace(SEGMENTS[0], model_error=errors[0]), SEGMENTS[1]])
     assert segment_correlations("robot", measured) == (0.2, 0.0)
     assert segment_correlations(0.5, measured) == (0.5, 0.5)
-    # by default independent per frame, whatever the file says (it measured better)
-    assert segment_correlations(GraphOptions().model_correlation, measured) == (0.0, 0.0)
+    # by default the file's correlation length (it measured better)
+    assert segment_correlations(GraphOptions().model_correlation, measured) == (0.2, 0.0)
     assert GraphOptions(model_correlation=2).model_correlation == 2.0
     for bad in (-1.0, math.inf, "often", True):
         with pytest.raises(ValueError, match="GraphOptions.model_correlation"):

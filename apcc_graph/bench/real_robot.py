@@ -77,17 +77,17 @@ PEERS = {"smoother-qr": SmootherOptions(window=WindowOptions(factorization="QR")
 by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad)."""
 EXACT = ("batch-exact", "smoother-exact")
 """The batch and the smoother with the exact model forced (``--exact-model``)."""
-DRIFT = ("batch-drift", "smoother-drift")
-"""The batch and the smoother with the robot file's model error drifting along the bends
-(``GraphOptions.model_correlation = "robot"``: its measured correlation length) instead of
-independent per frame."""
+INDEPENDENT = ("batch-independent", "smoother-independent")
+"""The batch and the smoother with the robot file's model error independent per frame
+(``GraphOptions.model_correlation = 0``) instead of drifting along the bends over the length
+the calibration measured (the default)."""
 METHODS = ("chain", "batch", "smoother", "batch-exact", "smoother-exact", "noise",
-           "smoother-noise", "noise@floor", "batch-chain", *DRIFT, *PEERS)
+           "smoother-noise", "noise@floor", "batch-chain", *INDEPENDENT, *PEERS)
 """Every method the bench knows. ``batch`` and ``smoother`` are the defaults: the robot file
 from the calibration, with its model errors; ``noise`` and ``smoother-noise`` take the bench's
 ``model_sigma`` instead; ``batch-chain`` is ``batch`` started from the chain rather than from
 the cameras' rotations. The :data:`PEERS` are not in the default list."""
-SMOOTHERS = ("smoother", "smoother-exact", "smoother-noise", "smoother-drift", *PEERS)
+SMOOTHERS = ("smoother", "smoother-exact", "smoother-noise", "smoother-independent", *PEERS)
 """The methods whose yardstick on the model-exact motion is the lag bound."""
 MODEL_SIGMA = (1e-3, math.radians(0.5))
 """The benchmark's model noise (position m, rotation rad) for ``noise`` and ``noise@floor``."""
@@ -164,15 +164,15 @@ def _estimate(seq: Sequence, method: str, floor: TipFloor, start_sigma: float, n
                                                    model_sigma=model_sigma))
     graph = (GraphOptions(model_sigma=model_sigma) if method in ("noise", "smoother-noise")
              else GraphOptions(model_sigma=None) if method in EXACT
-             else GraphOptions(model_correlation=ROBOT) if method in DRIFT else None)
-    if method in ("smoother-exact", "smoother-drift"):
+             else GraphOptions(model_correlation=0.0) if method in INDEPENDENT else None)
+    if method in ("smoother-exact", "smoother-independent"):
         method = "smoother"
     if method in SMOOTHERS and method != "smoother":
         return estimate(seq, method="smoother", spatial=True, theta0=floor.thetas[0],
                         psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px,
                         settings=PEERS.get(method), graph=graph)
     settings = BatchOptions(init="chain") if method == "batch-chain" else None
-    batches = ("noise", "batch-exact", "batch-chain", "batch-drift")
+    batches = ("noise", "batch-exact", "batch-chain", "batch-independent")
     return estimate(seq, method="batch" if method in batches else method,
                     settings=settings, spatial=True, theta0=floor.thetas[0],
                     psi0=floor.psis[0], theta0_sigma=start_sigma, noise_px=noise_px, graph=graph)

@@ -42,9 +42,10 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                     default="chain,batch,smoother,batch-exact,smoother-exact,noise@floor",
                     help="estimators, comma-separated (default: %(default)s): batch and "
                     "smoother as a user gets them (the calibrated robot file's model error as "
-                    "noise, independent per frame), *-exact with the exact model "
-                    "forced; peers to add: batch-drift and smoother-drift (the file's model error "
-                    "drifting along the bends), batch-chain (batch "
+                    "noise, drifting along the bends), *-exact with the exact model "
+                    "forced; peers to add: batch-independent and smoother-independent (the file's "
+                    "model error independent per frame, not drifting along the bends), "
+                    "batch-chain (batch "
                     "started from the chain instead of the cameras' rotations), noise and "
                     "smoother-noise (with --model-sigma), smoother-qr (the smoother factoring "
                     "its window by QR), smoother-gate (the smoother with the model-free "

@@ -41,10 +41,12 @@ class BatchReport:
 
 
 def optimise(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
-             relative_tolerance: float = 1e-6, ordering: gtsam.Ordering | None = None
-             ) -> tuple[gtsam.Values, int]:
-    """Levenberg-Marquardt from ``values`` (``ordering``, else gtsam's); solution, iterations."""
+             relative_tolerance: float = 1e-6, ordering: gtsam.Ordering | None = None,
+             diagonal_damping: bool = False) -> tuple[gtsam.Values, int]:
+    """Levenberg-Marquardt from ``values`` (``ordering``, else gtsam's; ``diagonal_damping``:
+    damping scaled by the information's diagonal); solution, iterations."""
     params = gtsam.LevenbergMarquardtParams()
+    params.setDiagonalDamping(diagonal_damping)
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(relative_tolerance)
     params.setAbsoluteErrorTol(1e-9)
@@ -210,6 +212,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     bar.total = len(stages) + 2
     bar.update()
     iterations = 0
+    cap = model.stage_iterations or max_iterations
     for stage, mu in enumerate(stages):
         bar.set_postfix_str(f"outlier round {stage + 1} of at most {len(stages)}")
         if stage > 0:  # a truncated stage whose residuals change no decision ends it
@@ -221,8 +224,8 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
             graph.add(factor)
         # Intermediate stages only lead the weights; the truncated quadratic is solved tightly.
         values, ordering = model.values(x)
-        values, its = optimise(graph, values, max_iterations, 1e-6 if math.isinf(mu) else 1e-3,
-                               ordering)
+        values, its = optimise(graph, values, cap, 1e-6 if math.isinf(mu) else 1e-3,
+                               ordering, model.diagonal_damping)
         x = thetas_from(values, frames)
         model.measure(values)
         iterations += its

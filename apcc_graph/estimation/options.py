@@ -55,10 +55,10 @@ class GraphOptions:
             and the smoother; the chain has the exact model (it refuses an explicit noise).
         model_correlation: how far the bends move before a segment's model error changes,
             radians of the frame vector (docs/estimation.md, "A model error that drifts"):
-            ``0`` (default): an independent model error per frame; ``"robot"``: the
-            correlation length the calibration wrote into the robot file, per segment (0
-            where it has none); a number: that for every segment. Only with model error as
-            noise. The default measured better on the real robot's recordings.
+            ``"robot"`` (default): the correlation length the calibration wrote into the robot
+            file, per segment (an independent error per frame where it has none); ``0``: an
+            independent model error per frame; a number: that for every segment. Only with
+            model error as noise. The default measured better on the real robot's recordings.
     """
 
     threshold_px: float = 1.0
@@ -70,7 +70,7 @@ class GraphOptions:
     max_track_frames: int | None = 150
     still_tick: float | None = STILL_TICK
     model_sigma: ModelSigma = ROBOT
-    model_correlation: str | float = 0.0
+    model_correlation: str | float = ROBOT
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "model_sigma", normalised(self.model_sigma))

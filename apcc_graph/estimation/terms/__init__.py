@@ -32,6 +32,8 @@ class MeasurementModel(Protocol):
     the solution, from which the next stage's ``set_weights`` decide."""
 
     calibration: ModelCalibration | None  # the self-calibration at the last solution
+    stage_iterations: int | None  # most Levenberg-Marquardt iterations a stage (None: the caller's)
+    diagonal_damping: bool  # Levenberg-Marquardt damps by the information's diagonal
 
     def start(self, sequence: Sequence, x: FloatArray, robustness: Robustness) -> list[float]:
         """First decisions at ``x``; returns the stages (``mu``) before the residual rounds."""

@@ -49,6 +49,9 @@ class ExactTerms:
     radians) and ``mount_sigmas`` (radians, metres), when given, self-calibrate with priors of
     these standard deviations (:func:`~apcc_graph.estimation.graph.calibration_factors`)."""
 
+    stage_iterations = None
+    diagonal_damping = False
+
     def __init__(self, robot: Robot, options: GraphOptions, bending: Bending,
                  calibration_sigmas: tuple[float, float] | None = None,
                  mount_sigmas: tuple[float, float] | None = None) -> None:
