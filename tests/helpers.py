@@ -130,3 +130,29 @@ def simulation_head(simulation, frames: int):  # -> Simulation
         outliers={c: v[keep[c]] for c, v in simulation.outliers.items()},
         world_T_cam={c: v[:frames] for c, v in simulation.world_T_cam.items()},
         world_T_tip=simulation.world_T_tip[:frames])
+
+
+def fast_stretch_bound(frames: int, model_sigma: tuple[float, float], start_sigma: float,
+                       drifting: bool = False) -> np.ndarray:
+    """``(S,)`` the RMS over the first ``frames`` frames of the fast stretch's replay (as
+    :func:`fast_stretch_replay`) of the Cramer-Rao bound of the segment ends (metres) with the
+    model error ``model_sigma`` (position m, rotation rad) as noise on every segment, the start
+    prior ``start_sigma`` (radians) and 1 px; ``drifting``: correlated along the bends as the
+    calibration measured."""
+    from apcc_graph.estimation.model_noise import segment_correlations
+    from apcc_graph.evaluation.noise_bound import model_noise_tip_bound
+    from apcc_graph.evaluation.tip_floor import tip_floor
+    from apcc_graph.model.parameterisation import Bending
+    from apcc_graph.simulation.replay import replay_motion
+
+    model, ends = slow_recording_calibrated()
+    replay = replay_motion(model, ends, noise_px=1.0, outlier_fraction=0.1, seed=0,
+                           stretch=1).simulation
+    whole = tip_floor(model, replay.sequence.truth_tips)
+    bending = Bending.free(model.segments)
+    bound = model_noise_tip_bound(
+        simulation_head(replay, frames),
+        bending.vector(whole.thetas[:frames], whole.psis[:frames]), bending,
+        (model_sigma,) * model.n_segments, 1.0, start_sigma, 1,
+        segment_correlations("robot", model) if drifting else ())
+    return np.sqrt(np.mean(bound.sigmas ** 2, axis=0))

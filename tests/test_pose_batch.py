@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import fast_stretch_replay, simulation_head, slow_recording_calibrated
+from helpers import fast_stretch_bound, fast_stretch_replay
 from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -23,8 +23,7 @@ from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.terms.noisy import forward_tips
-from apcc_graph.evaluation.noise_bound import model_noise_tip_bound
-from apcc_graph.evaluation.tip_floor import TipFloor, tip_errors, tip_floor
+from apcc_graph.evaluation.tip_floor import TipFloor, tip_errors
 from apcc_graph.frontend.rotation_pairs import (
     draw_pairs,
     kabsch,
@@ -34,7 +33,6 @@ from apcc_graph.frontend.rotation_pairs import (
 from apcc_graph.model.parameterisation import Bending
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import Sequence
-from apcc_graph.simulation.replay import replay_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL_SIGMA = (1e-3, math.radians(0.5))
@@ -65,14 +63,7 @@ def test_model_noise_keeps_near_its_bound_where_the_exact_model_is_driven_away()
                              options=GraphOptions(theta0_sigma=math.radians(2.0),
                                                   model_sigma=sigma))
         rms[label] = _tip_rms(model, est.thetas, est.psis, truth)
-    model_, ends = slow_recording_calibrated()
-    replay = replay_motion(model_, ends, noise_px=1.0, outlier_fraction=0.1, seed=0,
-                           stretch=1).simulation
-    whole = tip_floor(model, replay.sequence.truth_tips)
-    bound = model_noise_tip_bound(simulation_head(replay, 40),
-                                  bending.vector(whole.thetas[:40], whole.psis[:40]), bending,
-                                  (MODEL_SIGMA, MODEL_SIGMA), 1.0, math.radians(2.0), 1)
-    bound_rms = np.sqrt(np.mean(bound.sigmas ** 2, axis=0))
+    bound_rms = fast_stretch_bound(40, MODEL_SIGMA, math.radians(2.0))
     # Measured: bound 4.7 / 13.5 mm, model noise 8.4 / 23.2 mm, exact 86 / 276 mm. (With each
     # point a variable under a 10 m prior around its triangulation at the floor's tips, the
     # batch once measured 2.4 / 8.9 mm: below the bound, the prior's knowledge of the floor.)

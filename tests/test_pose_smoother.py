@@ -10,22 +10,19 @@ import warnings
 import gtsam
 import numpy as np
 import pytest
-from helpers import fast_stretch_replay, simulation_head, slow_recording_calibrated
+from helpers import fast_stretch_bound, fast_stretch_replay
 
 from apcc_graph.estimation.batch import batch_estimate
 from apcc_graph.estimation.methods import estimate
-from apcc_graph.estimation.model_noise import segment_correlations
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.pose_points import PosePoints
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother.fixed_lag import FixedLagISAM2
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.estimation.window import RestartWarning
-from apcc_graph.evaluation.noise_bound import model_noise_tip_bound
-from apcc_graph.evaluation.tip_floor import tip_errors, tip_floor
+from apcc_graph.evaluation.tip_floor import tip_errors
 from apcc_graph.factors.keys import elimination_group, frame_key, point_key, tip_key
 from apcc_graph.model.parameterisation import Bending
-from apcc_graph.simulation.replay import replay_motion
 
 MODEL_SIGMA = (1e-3, math.radians(0.5))
 START_SIGMA = math.radians(2.0)
@@ -83,15 +80,7 @@ def test_a_recording_shorter_than_the_lag_is_near_its_bound_and_the_batch_s() ->
                            initial=bending.vector(smoothed.thetas, smoothed.psis),
                            options=GraphOptions(theta0_sigma=START_SIGMA,
                                                 model_sigma=MODEL_SIGMA), marginals=False)
-    calibrated, ends = slow_recording_calibrated()
-    replay = replay_motion(calibrated, ends, noise_px=1.0, outlier_fraction=0.1, seed=0,
-                           stretch=1).simulation
-    whole = tip_floor(model, replay.sequence.truth_tips)
-    bound = model_noise_tip_bound(simulation_head(replay, 14),
-                                  bending.vector(whole.thetas[:14], whole.psis[:14]), bending,
-                                  (MODEL_SIGMA, MODEL_SIGMA), 1.0, START_SIGMA, 1,
-                                  segment_correlations("robot", model))
-    bound_rms = np.sqrt(np.mean(bound.sigmas ** 2, axis=0))
+    bound_rms = fast_stretch_bound(14, MODEL_SIGMA, START_SIGMA, drifting=True)
     ours, theirs = _tip_rms(model, smoothed, truth), _tip_rms(model, batch, truth)
     assert np.all(ours < 2.0 * bound_rms), (ours, bound_rms)
     assert np.all(theirs < 2.0 * bound_rms), (theirs, bound_rms)
