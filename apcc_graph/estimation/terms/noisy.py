@@ -75,7 +75,7 @@ class _Camera:
     def __init__(self, obs: TrackObservations, mount: FloatArray, weights: FloatArray,
                  frames_per_chunk: int) -> None:
         self.obs = obs
-        self.chunks = []
+        self.chunks: list[TipProjectionFactor] = []
         for tracks in chunk_tracks(obs, frames_per_chunk):
             rows = np.concatenate([np.arange(obs.starts[t], obs.starts[t + 1]) for t in tracks])
             self.chunks.append(TipProjectionFactor(obs.select(tracks), mount, weights[rows]))
