@@ -93,3 +93,17 @@ def test_reacquisition_runs_the_model_its_options_choose(robot: Robot) -> None:
     # (measured: segments 2 and 3, 0.74 / 0.70 deg exact, 2.3 / 2.1 deg with the ties).
     ratio = np.mean(loose, axis=0)[1:] / np.mean(exact, axis=0)[1:]
     assert np.all(ratio > 2.0), ratio
+
+
+def test_the_caller_s_iteration_cap_holds_for_the_model_noise_batch(robot: Robot) -> None:
+    """The model-noise batch runs at most its own 3 iterations a stage, and fewer where the
+    caller asks for fewer."""
+    seq = _room(robot, 10, 5)
+    start = seq.thetas + np.radians(1.0)
+    one = projection_solve(seq, start, seq.thetas[0], GraphOptions(model_sigma=LOOSE),
+                           max_iterations=1, marginals=False)
+    assert one.report.iterations <= one.report.stages
+    own = projection_solve(seq, start, seq.thetas[0], GraphOptions(model_sigma=LOOSE),
+                           marginals=False)
+    assert own.report.iterations <= 3 * own.report.stages
+    assert own.report.iterations > own.report.stages  # the cap of 1 was binding

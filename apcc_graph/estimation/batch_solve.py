@@ -184,7 +184,8 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
         robustness: the outlier threshold and the exact model's GNC schedule (default
             :class:`~apcc_graph.estimation.options.Robustness`: fitted to the residuals at
             ``initial`` by :func:`~apcc_graph.estimation.robust.gnc_start`).
-        max_iterations: Levenberg-Marquardt iterations per stage.
+        max_iterations: Levenberg-Marquardt iterations per stage (the model's
+            ``stage_iterations`` where fewer).
         marginals: compute marginal sigmas (otherwise NaN).
         progress: show a progress bar over the stages.
         calibration_sigmas, mount_sigmas: self-calibration (the exact model only): estimate
@@ -212,7 +213,7 @@ def projection_solve(sequence: Sequence, initial: FloatArray, theta0: FloatArray
     bar.total = len(stages) + 2
     bar.update()
     iterations = 0
-    cap = model.stage_iterations or max_iterations
+    cap = min(max_iterations, model.stage_iterations or max_iterations)
     for stage, mu in enumerate(stages):
         bar.set_postfix_str(f"outlier round {stage + 1} of at most {len(stages)}")
         if stage > 0:  # a truncated stage whose residuals change no decision ends it

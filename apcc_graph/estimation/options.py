@@ -167,7 +167,8 @@ class BatchOptions:
             own, chained from frame to frame without the model:
             :mod:`~apcc_graph.estimation.rotation_start`; the basin the images point to where
             the robot departs from its model).
-        max_iterations: Levenberg-Marquardt iterations per stage.
+        max_iterations: Levenberg-Marquardt iterations per stage (with model error as noise
+            at most 3: :attr:`~apcc_graph.estimation.terms.noisy.NoisyTerms.stage_iterations`).
         marginals: compute marginal standard deviations (otherwise NaN).
         calibrate: self-calibration: estimate each segment's k and delta_max jointly with the
             bends, with priors of ``calibration_sigmas`` around the robot's values.
