@@ -180,11 +180,11 @@ def segment_tie_residual(world_T_base: gtsam.Pose3, x: FloatArray, world_T_tip: 
         columns) and ``H_tip`` ``(6, 6)``, under ``T . Exp(d)`` and ``x + d``.
     """
     x = np.asarray(x, dtype=float)
-    A = bending.transform(x, segment)
     if not jacobians:
-        return _pose_tie(world_T_base, A, world_T_tip, None)
+        return _pose_tie(world_T_base, bending.transform(x, segment), world_T_tip, None)
+    A, dAs = bending.transform_and_derivatives(x, segment)
     A_inv = np.linalg.inv(A)
-    twists = np.column_stack([vee(A_inv @ dA) for dA in bending.derivatives(x, segment)])
+    twists = np.column_stack([vee(A_inv @ dA) for dA in dAs])
     r, h_base, h_segment, h_tip = _pose_tie(world_T_base, A, world_T_tip, twists)
     H_x = np.zeros((6, bending.dim))
     H_x[:, bending.columns(segment)] = h_segment

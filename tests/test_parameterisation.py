@@ -46,6 +46,27 @@ def test_fixed_planes_at_zero_are_the_planar_kinematics_bit_for_bit() -> None:
                                                           planar.theta_max))
 
 
+@settings(max_examples=80, deadline=None)
+@given(u=st.floats(-1.0, 1.0), v=st.floats(-1.0, 1.0), scale=st.sampled_from([1.0, 1e-9, 0.0]),
+       j=st.integers(0, 2), free=st.booleans())
+def test_one_frame_takes_the_scalar_path_with_the_vectorised_values(
+        u: float, v: float, scale: float, j: int, free: bool) -> None:
+    """A single frame vector (what the factors' callbacks pass) goes through the scalar fast
+    path: its transform and derivatives equal the vectorised functions' on a batch of one,
+    straight (``b = 0``) and nearly straight bends included."""
+    bending = Bending.free(SEGMENTS) if free else Bending.fixed(SEGMENTS, [0.3, -1.0, 2.0])
+    x = np.array([0.2, -0.4, 0.6, 0.1, -0.3, 0.5])[:bending.dim]
+    cols = bending.columns(j)
+    x[cols] = np.array([u, v])[:bending.width] * scale
+    np.testing.assert_allclose(bending.transform(x, j), bending.transform(x[None], j)[0],
+                               atol=1e-12)
+    for mine, theirs in zip(bending.derivatives(x, j), bending.derivatives(x[None], j),
+                            strict=True):
+        # near straight both take the psi derivative at SMALL_THETA (1e-8): equal to that
+        np.testing.assert_allclose(mine, theirs[0], atol=1e-12 if math.hypot(u, v) * scale > 1e-6
+                                   else 1e-8)
+
+
 @settings(max_examples=60, deadline=None)
 @given(theta=st.floats(-1.0, 1.0), plane=st.floats(-math.pi, math.pi), j=st.integers(0, 2))
 def test_a_fixed_plane_is_the_bending_vector_on_its_line(theta: float, plane: float,

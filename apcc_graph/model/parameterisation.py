@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike
 
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.bending import (
+    SMALL_THETA,
     bending_transform,
     bending_transform_derivative,
     bending_vector,
@@ -44,7 +45,7 @@ from apcc_graph.model.kinematics import (
     apcc_transform_calibration_derivative,
     apcc_transform_derivative,
 )
-from apcc_graph.model.scalar_kinematics import apcc_transform_scalar
+from apcc_graph.model.scalar_kinematics import apcc_transform_scalar, bending_transform_scalar
 from apcc_graph.model.segment import Segment
 
 
@@ -124,14 +125,36 @@ class Bending:
         """Segment j's ``base_T_tip`` ``(..., 4, 4)`` for frame vectors ``x`` ``(..., dim)``."""
         x = np.asarray(x, dtype=float)
         seg = self.segments[j]
+        if x.ndim == 1:  # one frame: the scalar fast path (the factors' callbacks)
+            return self._scalar(x, j)[0]
         if self.planes is None:
             return bending_transform(x[..., 2 * j], x[..., 2 * j + 1], seg)
         return apcc_transform(x[..., j], seg, self._plane[j])
+
+    def transform_and_derivatives(self, x: ArrayLike, j: int
+                                  ) -> tuple[FloatArray, tuple[FloatArray, ...]]:
+        """Segment j's ``base_T_tip`` ``(4, 4)`` and its matrix derivatives (:meth:`transform`
+        and :meth:`derivatives`) for one frame vector ``x`` ``(dim,)``, computed once."""
+        return self._scalar(np.asarray(x, dtype=float), j)
+
+    def _scalar(self, x: FloatArray, j: int) -> tuple[FloatArray, tuple[FloatArray, ...]]:
+        """Segment j's transform and derivatives for one frame vector ``x`` ``(dim,)``
+        (:mod:`~apcc_graph.model.scalar_kinematics`: the same values as the vectorised
+        functions without numpy's per-call overhead)."""
+        seg = self.segments[j]
+        if self.planes is None:
+            T, du, dv = bending_transform_scalar(float(x[2 * j]), float(x[2 * j + 1]), seg,
+                                                 SMALL_THETA)
+            return T, (du, dv)
+        T, d = apcc_transform_scalar(float(x[j]), seg, float(self._plane[j]))
+        return T, (d,)
 
     def derivatives(self, x: ArrayLike, j: int) -> tuple[FloatArray, ...]:
         """Segment j's matrix derivatives in its ``width`` components, each ``(..., 4, 4)``."""
         x = np.asarray(x, dtype=float)
         seg = self.segments[j]
+        if x.ndim == 1:
+            return self._scalar(x, j)[1]
         if self.planes is None:
             return bending_transform_derivative(x[..., 2 * j], x[..., 2 * j + 1], seg)
         return (apcc_transform_derivative(x[..., j], seg, self._plane[j])[0],)

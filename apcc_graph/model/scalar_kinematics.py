@@ -95,3 +95,31 @@ def apcc_transform_scalar_calibration(
     dT_dd = np.zeros((4, 4))
     dT_dd[:3, :3] = dT[:3, :3] * (-theta / segment.theta_max / (1.0 - segment.deviation_rate))
     return T, dT, dT_dk, dT_dd
+
+
+def bending_transform_scalar(u: float, v: float, segment: Segment, small_theta: float
+                             ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``base_T_tip`` of one bending vector ``(u, v)`` and its derivatives ``dT/du``, ``dT/dv``
+    (``(4, 4)`` each): the values of :func:`~apcc_graph.model.bending.bending_transform` and
+    :func:`~apcc_graph.model.bending.bending_transform_derivative`, whose conventions these
+    are: ``dT/du = cos psi dT/dtheta - sin psi (dT/dpsi) / theta`` and ``dT/dv = sin psi
+    dT/dtheta + cos psi (dT/dpsi) / theta``, the second term taken at ``small_theta`` below
+    it. ``dT/dpsi`` is written out from the matrix of :func:`apcc_transform_scalar` (its
+    entries in ``1 - cos beta``, ``sin beta`` and the tip's ``px``), so nothing cancels near
+    straight."""
+    theta, psi = math.hypot(u, v), math.atan2(v, u)
+    T, d_theta = apcc_transform_scalar(theta, segment, psi)
+    lifted = theta if theta >= small_theta else small_theta
+    T_psi = T if lifted == theta else apcc_transform_scalar(lifted, segment, psi)[0]
+    c, s = math.cos(psi), math.sin(psi)
+    beta = lifted * (1.0 - segment.deviation_rate)
+    sb, vb = math.sin(beta), 2.0 * math.sin(0.5 * beta) ** 2
+    px = c * T_psi[0, 3] + s * T_psi[1, 3]
+    cross = -vb * (c * c - s * s)
+    d_psi = np.array([
+        [2.0 * vb * c * s, cross, -sb * s, -s * px],
+        [cross, -2.0 * vb * c * s, sb * c, c * px],
+        [sb * s, -sb * c, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0],
+    ]) / lifted
+    return T, c * d_theta - s * d_psi, s * d_theta + c * d_psi
