@@ -77,6 +77,7 @@ class TipProjectionFactor:
         self.points: FloatArray | None = None
         self.norms: FloatArray | None = None
         self.dim = 6 * len(self.keys) + 1
+        self.point_iterations = 10  # from the kept points; 1 suits iSAM2's re-linearisations
 
     def _rows(self, obs: TrackObservations, tips: FloatArray, derivatives: bool
               ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
@@ -94,7 +95,7 @@ class TipProjectionFactor:
         """The reduced system of the rows ``obs`` (the chunk's, or some of its tracks)."""
         Rb, ob, dX = self._rows(obs, tips, jacobians)
         return reduced_at_poses(obs, Rb, ob, dX, len(tips), 6, obs.frames - self.first,
-                                weights, points)
+                                weights, points, point_iterations=self.point_iterations)
 
     def system(self, tips: FloatArray, jacobians: bool = True) -> ReducedSystem:
         """The reduced system at the chunk's tips ``(F', 4, 4)``; the points are kept (the

@@ -132,14 +132,14 @@ def simulation_head(simulation, frames: int):  # -> Simulation
         world_T_tip=simulation.world_T_tip[:frames])
 
 
-def fast_stretch_bound(frames: int, model_sigma: tuple[float, float], start_sigma: float,
+def fast_stretch_bound(frames: int, model_sigma: tuple[float, float] | str, start_sigma: float,
                        drifting: bool = False) -> np.ndarray:
     """``(S,)`` the RMS over the first ``frames`` frames of the fast stretch's replay (as
     :func:`fast_stretch_replay`) of the Cramer-Rao bound of the segment ends (metres) with the
-    model error ``model_sigma`` (position m, rotation rad) as noise on every segment, the start
-    prior ``start_sigma`` (radians) and 1 px; ``drifting``: correlated along the bends as the
-    calibration measured."""
-    from apcc_graph.estimation.model_noise import segment_correlations
+    model error ``model_sigma`` (position m, rotation rad; ``"robot"``: the calibration's, per
+    segment) as noise on every segment, the start prior ``start_sigma`` (radians) and 1 px;
+    ``drifting``: correlated along the bends as the calibration measured."""
+    from apcc_graph.estimation.model_noise import segment_correlations, segment_sigmas
     from apcc_graph.evaluation.noise_bound import model_noise_tip_bound
     from apcc_graph.evaluation.tip_floor import tip_floor
     from apcc_graph.model.parameterisation import Bending
@@ -153,6 +153,6 @@ def fast_stretch_bound(frames: int, model_sigma: tuple[float, float], start_sigm
     bound = model_noise_tip_bound(
         simulation_head(replay, frames),
         bending.vector(whole.thetas[:frames], whole.psis[:frames]), bending,
-        (model_sigma,) * model.n_segments, 1.0, start_sigma, 1,
+        segment_sigmas(model_sigma, model), 1.0, start_sigma, 1,  # type: ignore[arg-type]
         segment_correlations("robot", model) if drifting else ())
     return np.sqrt(np.mean(bound.sigmas ** 2, axis=0))

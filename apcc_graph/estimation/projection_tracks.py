@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import Protocol
 
 import gtsam
 import numpy as np
@@ -49,7 +50,19 @@ rows judged against it (two rays fit any point; a wrong point then judges every 
 
 Rows = Mapping[int, tuple[NDArray[np.int64], FloatArray, FloatArray]]
 """camera -> (track ids, normalised points, whitening) of a new frame."""
-LiveFactor = tuple[int, int, ProjectionFactor]
+
+
+class TrackFactor(Protocol):
+    """What the smoother needs of a projection factor (over frame vectors, or over tips)."""
+
+    obs: TrackObservations
+    points: FloatArray | None
+
+    def factor(self) -> gtsam.CustomFactor:
+        """The gtsam factor."""
+
+
+LiveFactor = tuple[int, int, TrackFactor]
 """A live factor: its position in the update's graph, its camera, the factor."""
 
 
@@ -125,28 +138,51 @@ class ProjectionTracks:
         """One projection factor for camera ``cam``'s committed pieces, with the outlier
         decisions taken against each piece's robust point at the current estimates, times
         the model-free gate's (call before the live tracks drop the pieces' frames)."""
-        first, last = int(obs.frames.min()), int(obs.frames.max())
         gate = self.live.gates(obs)
         gate *= enough_rows(gate, obs.tracks, obs.starts, 2)
-        chain = self.chain(cam, first, last)
-        norms, points = robust_residual_norms(obs, chain, self.span(first, last), first, gate)
+        norms, points = self.robust_norms(cam, obs, gate)
         weights = gnc_tls_weights(norms, self.inlier_sigmas, math.inf) * gate
         # A piece left with one row says nothing about the angles, but its point, fixed off
         # that row's ray between linearisations, makes a large spurious cost.
         weights *= enough_rows(weights, obs.tracks, obs.starts, 2)
-        factor = ProjectionFactor(obs, chain, self.dim, weights)
-        factor.points = points
-        self.count(len(obs), int(np.sum(factor.weights == 0.0)))
-        if not factor.weights.any():
+        self.count(len(obs), int(np.sum(weights == 0.0)))
+        if not weights.any():
             return
-        if self.settings.window.relinearize:
-            factor.point_iterations = self.settings.tracks.point_iterations
+        relinearize = self.settings.window.relinearize
+        factor = self.new_factor(cam, obs, weights, points,
+                                 self.settings.tracks.point_iterations if relinearize else None)
+        if relinearize:
             graph.add(factor.factor())
             return
         # Linearised once, here, at estimates the window has refined for as long as the piece
         # was live: a C++ factor iSAM2 never calls back into Python for.
-        values = values_from(self.span(first, last), range(first, last + 1))
+        values = self.linear_values(cam, int(obs.frames.min()), int(obs.frames.max()))
         graph.add(gtsam.LinearContainerFactor(factor.factor().linearize(values), values))
+
+    def robust_norms(self, cam: int, obs: TrackObservations, gate: FloatArray
+                     ) -> tuple[FloatArray, FloatArray]:
+        """Every row's whitened residual norm against its piece's point, found robustly from
+        the rows ``gate`` keeps at the current estimates, and the points ``(T, 3)``."""
+        first, last = int(obs.frames.min()), int(obs.frames.max())
+        return robust_residual_norms(obs, self.chain(cam, first, last), self.span(first, last),
+                                     first, gate)
+
+    def new_factor(self, cam: int, obs: TrackObservations, weights: FloatArray,
+                   points: FloatArray, point_iterations: int | None) -> TrackFactor:
+        """Camera ``cam``'s projection factor over ``obs`` starting from ``points``
+        (``point_iterations``: triangulation steps per linearisation; ``None``: the
+        factor's own)."""
+        first, last = int(obs.frames.min()), int(obs.frames.max())
+        factor = ProjectionFactor(obs, self.chain(cam, first, last), self.dim, weights)
+        factor.points = points
+        if point_iterations is not None:
+            factor.point_iterations = point_iterations
+        return factor
+
+    def linear_values(self, cam: int, first: int, last: int) -> gtsam.Values:
+        """The current estimates of the variables camera ``cam``'s factors over frames
+        ``first..last`` depend on (where a committed factor is linearised once)."""
+        return values_from(self.span(first, last), range(first, last + 1))
 
     def known_rows(self, rows: Rows, marks: Mapping[int, NDArray[np.int64]],
                    landmarks: Landmarks, gates: Mapping[int, FloatArray] | None = None
@@ -184,33 +220,28 @@ class ProjectionTracks:
             if found is None:
                 continue
             obs, weights, index = found
-            first, last = int(obs.frames.min()), int(obs.frames.max())
-            chain = self.chain(cam, first, last)
             points = self.live.points(cam)
             new = np.array([int(p) not in points for p in obs.ids], dtype=bool)
             if new.any():
-                self._decide(cam, obs, weights, index, new, chain, first, last)
+                self._decide(cam, obs, weights, index, new)
                 known = np.array([int(p) in points for p in obs.ids], dtype=bool)
                 if not known.all():  # pieces the gate left too few rows to decide yet
                     weights = weights[known[obs.tracks]]
                     obs = obs.select(np.flatnonzero(known))
                     if len(obs) == 0:
                         continue
-                    first, last = int(obs.frames.min()), int(obs.frames.max())
-                    chain = self.chain(cam, first, last)
             weights = weights * enough_rows(weights, obs.tracks, obs.starts, 2)
             if not weights.any():
                 continue
-            factor = ProjectionFactor(obs, chain, self.dim, weights)
-            factor.points = np.array([points[int(p)] for p in obs.ids])
-            factor.point_iterations = self.settings.tracks.point_iterations
+            factor = self.new_factor(cam, obs, weights,
+                                     np.array([points[int(p)] for p in obs.ids]),
+                                     self.settings.tracks.point_iterations)
             out.append((graph.size(), cam, factor))
             graph.add(factor.factor())
         return out
 
     def _decide(self, cam: int, obs: TrackObservations, weights: FloatArray,
-                index: NDArray[np.int64], new: NDArray[np.bool_], chain: CameraChain,
-                first: int, last: int) -> None:
+                index: NDArray[np.int64], new: NDArray[np.bool_]) -> None:
         """Outlier decisions and points of the pieces ``new`` (a mask over ``obs``' pieces)
         from a robust triangulation at the current estimates. A piece with fewer than
         :data:`DECIDE_OPEN` rows the model-free gate leaves open is not decided yet: its rows
@@ -221,8 +252,7 @@ class ProjectionTracks:
                                for t in np.flatnonzero(new)])
         gate = self.live.gates(part)
         ready = enough_rows(gate, part.tracks, part.starts, DECIDE_OPEN)
-        norms, found_points = robust_residual_norms(part, chain, self.span(first, last), first,
-                                                    gate * ready)
+        norms, found_points = self.robust_norms(cam, part, gate * ready)
         decided = gnc_tls_weights(norms, self.inlier_sigmas, math.inf)
         weights[rows] = decided * gate * ready
         self.live.set_weights(cam, index[rows[ready]], decided[ready])

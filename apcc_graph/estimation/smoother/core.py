@@ -122,7 +122,7 @@ class FixedLagSmoother:
         groups = self._model.elimination if s.window.reproducible else None
         self._solver = Solver(lambda: new_window(s.window.lag, s.window.relinearize_threshold,
                                                  s.window.factorization, s.window.reproducible,
-                                                 groups))
+                                                 groups, self._model.trust_region))
         self._recovery = Recovery(robot, o, b, self.inlier_sigmas, self.gate, s.window.uncertainty,
                                   self._window, self._solver, self._model)
         self._previous: tuple[Rows, FloatArray | None] = ({}, None)  # last frame's rows, base

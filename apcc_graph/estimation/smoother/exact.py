@@ -50,6 +50,7 @@ class ExactTracks:
     final_steps = 0  # Gauss-Newton steps of the whole window at the end
     default_gate: float | None = None  # the rotation gate's threshold when none is set
     elimination = None  # iSAM2's own elimination order
+    trust_region = False  # Gauss-Newton steps: the frames' vectors alone, close to linear
 
     def __init__(self, robot: Robot, options: GraphOptions, settings: SmootherOptions,
                  window: Window, bending: Bending, inlier_sigmas: float) -> None:

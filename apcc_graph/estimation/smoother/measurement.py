@@ -46,6 +46,7 @@ class WindowModel(Protocol):
     final_steps: int  # Gauss-Newton steps of the whole window at the end of the stream
     default_gate: float | None  # the rotation gate's threshold when the settings name none
     elimination: Callable[[int], int] | None  # the window's elimination groups, if any
+    trust_region: bool  # iSAM2's steps are dogleg steps in a trust region (else Gauss-Newton)
 
     @property
     def committed(self) -> int:

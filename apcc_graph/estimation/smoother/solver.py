@@ -44,18 +44,22 @@ class Additions:
 
 
 def new_window(lag: float, relinearize_threshold: float, factorization: str = "CHOLESKY",
-               reproducible: bool = True, groups: Callable[[int], int] | None = None
-               ) -> WindowSolver:
+               reproducible: bool = True, groups: Callable[[int], int] | None = None,
+               trust_region: bool = False) -> WindowSolver:
     """iSAM2 over the last ``lag`` seconds, factoring the window's linear system by
     ``factorization`` (``"CHOLESKY"`` or ``"QR"``): marginalising the same way on every run
     (:class:`~apcc_graph.estimation.smoother.fixed_lag.FixedLagISAM2`), or gtsam's fixed-lag
     smoother; ``groups`` orders the elimination (key -> group, lower first; the reproducible
-    one only)."""
+    one only); ``trust_region``: each update's step is Powell's dogleg inside a trust region
+    that adapts to how well the linearisation predicted the last step, instead of the full
+    Gauss-Newton step."""
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(relinearize_threshold)
     params.relinearizeSkip = 1
     params.findUnusedFactorSlots = True
     params.setFactorization(factorization)
+    if trust_region:
+        params.setOptimizationParams(gtsam.ISAM2DoglegParams())
     if groups is not None and not reproducible:
         raise ValueError("new_window: an elimination order needs the reproducible smoother")
     return (FixedLagISAM2(lag, params, groups=groups) if reproducible
