@@ -10,7 +10,11 @@ import numpy as np
 import pytest
 
 from apcc_graph.bench.smoother import FPS, ROBOT_FILE
-from apcc_graph.evaluation.noise_bound import model_noise_graph, model_noise_tip_bound
+from apcc_graph.evaluation.noise_bound import (
+    model_noise_graph,
+    model_noise_lag_bound,
+    model_noise_tip_bound,
+)
 from apcc_graph.factors.keys import tip_key
 from apcc_graph.io.robot_file import load_robot
 from apcc_graph.model.parameterisation import Bending
@@ -124,3 +128,21 @@ def test_a_robot_at_rest_has_a_finite_bound() -> None:
     bound = model_noise_tip_bound(still, still.sequence.thetas, bending, SIGMAS, 1.0,
                                   math.radians(2.0), step=3)
     assert np.all(np.isfinite(bound.sigmas)) and np.all(bound.sigmas > 0.0), bound.sigmas
+
+
+def test_a_lag_bound_lies_between_the_filter_and_the_whole_recording() -> None:
+    """A smoother's bound with the model noise: the frames a lag later tell more about a frame
+    than none do, and everything tells most. With a lag past the recording's end it is the
+    whole recording's bound; with no lag it is the filter's, larger where frames followed."""
+    sim = simulate(load_robot(ROBOT_FILE), 12, noise_px=1.0, seed=2, fps=FPS, n_points=300)
+    bending = Bending.fixed(sim.sequence.robot.segments)
+    vectors = sim.sequence.thetas
+    args = (sim, vectors, bending, SIGMAS, 1.0, math.radians(0.1))
+    whole = model_noise_tip_bound(*args, step=4).sigmas
+    lagged = {lag: model_noise_lag_bound(*args, lag_frames=lag, step=4).sigmas
+              for lag in (0, 3, 11)}
+    np.testing.assert_allclose(lagged[11], whole, rtol=1e-6)
+    assert np.all(lagged[0] >= lagged[3] * (1 - 1e-9)) and np.all(lagged[3] >= whole * (1 - 1e-9))
+    assert np.all(lagged[0][:-1] > 1.01 * whole[:-1])  # later frames told the early ones more
+    with pytest.raises(ValueError, match="lag_frames"):
+        model_noise_lag_bound(*args, lag_frames=-1)

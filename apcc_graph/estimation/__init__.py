@@ -25,7 +25,7 @@
   (:mod:`~apcc_graph.estimation.window`), a new frame's start
   (:mod:`~apcc_graph.estimation.initial_guess`), the tracks it watches
   (:mod:`~apcc_graph.estimation.projection_tracks`, :mod:`~apcc_graph.estimation.live_tracks`,
-  :mod:`~apcc_graph.estimation.pose_points`) and its landmarks
+  :mod:`~apcc_graph.estimation.tip_tracks`) and its landmarks
   (:mod:`~apcc_graph.estimation.landmarks`); a run over a recorded sequence
   (:mod:`~apcc_graph.estimation.smoother_runs`).
 

@@ -52,25 +52,29 @@ from apcc_graph.simulation.simulator import Simulation
 
 def model_noise_graph(simulation: Simulation, vectors: FloatArray, bending: Bending,
                       sigmas: tuple[tuple[float, float], ...], noise_px: float,
-                      theta0_sigma: float | None, correlations: tuple[float, ...] = ()
+                      theta0_sigma: float | None, correlations: tuple[float, ...] = (),
+                      last_frame: int | None = None
                       ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The model-noise graph at the truth (module docstring;
     :func:`~apcc_graph.estimation.noise_information.noise_graph`): ``vectors`` ``(F, dim)``
     the frame vectors, ``sigmas`` per segment (position m, rotation rad), ``correlations`` per
     segment the model error's correlation length in bend (radians; empty or 0: independent
-    per frame)."""
+    per frame). ``last_frame``: the frames up to it only (what a smoother has seen
+    when it lets a frame go)."""
     seq = simulation.sequence
     robot = seq.robot
+    end = seq.n_frames if last_frame is None else last_frame + 1
     rows = {}
     for cam in robot.camera_segments:
         tracks = seq.tracks[cam]
-        keep = ~simulation.outliers[cam]
+        keep = ~simulation.outliers[cam] & (tracks.frames < end)
         ids, track = np.unique(tracks.track_ids, return_inverse=True)
         seen = np.bincount(track[keep], minlength=len(ids))
         kept = keep & (seen[track] >= 2)  # a point per track, as the estimators keep them
         rows[cam] = (tracks.frames[kept], track[kept],
                      simulation.points_world[simulation.landmarks[cam][kept]])
-    return noise_graph(robot, seq.world_T_base, vectors, simulation.world_T_tip, bending,
+    bases = None if seq.world_T_base is None else seq.world_T_base[:end]
+    return noise_graph(robot, bases, vectors[:end], simulation.world_T_tip[:end], bending,
                        sigmas, noise_px, theta0_sigma,
                        correlations or (0.0,) * robot.n_segments, rows)
 
@@ -98,15 +102,43 @@ def model_noise_tip_bound(simulation: Simulation, vectors: FloatArray, bending: 
     graph, values = model_noise_graph(simulation, vectors, bending, sigmas, noise_px,
                                       theta0_sigma, correlations)
     frames = np.arange(0, simulation.sequence.n_frames, step, dtype=np.int64)
-    S = simulation.sequence.n_segments
+    return TipBound(frames, _tip_sigmas(graph, values, frames, simulation.sequence.n_segments),
+                    None)
+
+
+def model_noise_lag_bound(simulation: Simulation, vectors: FloatArray, bending: Bending,
+                          sigmas: tuple[tuple[float, float], ...], noise_px: float,
+                          theta0_sigma: float | None, lag_frames: int, step: int = 10,
+                          correlations: tuple[float, ...] = ()) -> TipBound:
+    """The bound of :func:`model_noise_tip_bound` for a fixed-lag smoother that lets frame
+    ``f`` go ``lag_frames`` frames later: at each sampled frame, from the frames up to
+    ``f + lag_frames`` only (one graph and one factorisation per sample)."""
+    if step < 1 or lag_frames < 0:
+        raise ValueError(f"step = {step!r}, lag_frames = {lag_frames!r}: expected step >= 1 "
+                         "and lag_frames >= 0")
+    n_frames, S = simulation.sequence.n_frames, simulation.sequence.n_segments
+    frames = np.arange(0, n_frames, step, dtype=np.int64)
+    out = np.full((len(frames), S), math.inf)
+    for n, f in enumerate(frames.tolist()):
+        graph, values = model_noise_graph(simulation, vectors, bending, sigmas, noise_px,
+                                          theta0_sigma, correlations,
+                                          last_frame=min(f + lag_frames, n_frames - 1))
+        out[n] = _tip_sigmas(graph, values, np.array([f]), S)[0]
+    return TipBound(frames, out, None)
+
+
+def _tip_sigmas(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, frames: FloatArray,
+                S: int) -> FloatArray:
+    """``(len(frames), S)`` the bound of each segment end's position at ``frames`` (inf where
+    undetermined)."""
     out = np.full((len(frames), S), math.inf)
     translation = POSE_SIZE // 2 + np.arange(3)  # a pose's tangent: rotation, then translation
     found = marginal_columns(graph, values, [(tip_key(int(f), j), translation)
                                              for f in frames for j in range(S)])
     if found is None:  # singular: some unknown is undetermined
-        return TipBound(frames, out, None)
+        return out
     for n, block in enumerate(found):
         variance = float(np.trace(block))
         out[n // S, n % S] = (math.sqrt(variance) if math.isfinite(variance) and variance >= 0
                               else math.inf)
-    return TipBound(frames, out, None)
+    return out

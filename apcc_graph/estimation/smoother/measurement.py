@@ -7,7 +7,8 @@ how an estimate is read back (:class:`WindowModel`):
 - the exact model (:class:`~apcc_graph.estimation.smoother.exact.ExactTracks`): every
   observation projected through the model's camera poses, each track's point eliminated;
 - model error as noise (:class:`~apcc_graph.estimation.smoother.noisy.NoisyTracks`): tip poses
-  tied to the kinematics with the model's noise, points and gtsam's C++ projection factors.
+  tied to the kinematics with the model's noise, the same pieces projected through the tips,
+  each track's point eliminated.
 
 :func:`window_model` chooses from ``GraphOptions.model_sigma`` and the robot
 (:func:`~apcc_graph.estimation.model_noise.segment_sigmas`; ``None``: exact).
