@@ -26,6 +26,7 @@ is undefined; at exactly ``b = 0`` it is ``inf`` and ``sigma_theta`` is the larg
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -126,7 +127,10 @@ class Bending:
         x = np.asarray(x, dtype=float)
         seg = self.segments[j]
         if x.ndim == 1:  # one frame: the scalar fast path (the factors' callbacks)
-            return self._scalar(x, j)[0]
+            if self.planes is None:  # the transform alone: no derivative in the plane angle
+                u, v = float(x[2 * j]), float(x[2 * j + 1])
+                return apcc_transform_scalar(math.hypot(u, v), seg, math.atan2(v, u))[0]
+            return apcc_transform_scalar(float(x[j]), seg, float(self._plane[j]))[0]
         if self.planes is None:
             return bending_transform(x[..., 2 * j], x[..., 2 * j + 1], seg)
         return apcc_transform(x[..., j], seg, self._plane[j])
