@@ -36,6 +36,8 @@ dT_cam/dtheta_j)`` the body twist of angle j::
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
@@ -106,8 +108,9 @@ def camera_pose_factor(frame: int, camera: int, chain: CameraChain, n_segments: 
 
 def observation_factors(frames: NDArray[np.int64], camera: int,
                         landmarks: NDArray[np.int64], xy: FloatArray,
-                        calibration: gtsam.Cal3_S2, sigma_px: float
-                        ) -> list[gtsam.NonlinearFactor]:
+                        calibration: gtsam.Cal3_S2, sigma_px: float,
+                        pose_key: Callable[[int, int], int] = camera_pose_key,
+                        body: FloatArray | None = None) -> list[gtsam.NonlinearFactor]:
     """gtsam's C++ projection factors of landmark observations.
 
     Args:
@@ -118,13 +121,22 @@ def observation_factors(frames: NDArray[np.int64], camera: int,
         xy: ``(N, 2)`` undistorted normalised image coordinates.
         calibration: the camera's pinhole intrinsics (``fx, fy, 0, cx, cy``).
         sigma_px: the pixel noise (pixels).
+        pose_key: ``(frame, camera) -> the key of the pose the camera hangs from``: by default
+            the camera's own pose variable; :func:`~apcc_graph.factors.keys.tip_key` for the
+            tip pose of the camera's segment (then ``body`` is the camera's mounting).
+        body: ``(4, 4)`` the camera in the frame of that pose (``None``: the pose is the
+            camera's).
     """
     noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma_px)
     fx, fy = calibration.fx(), calibration.fy()
     cx, cy = calibration.px(), calibration.py()
+    mount = None if body is None else gtsam.Pose3(np.asarray(body, dtype=float))
     out = []
     for f, lm, (x, y) in zip(frames.tolist(), landmarks.tolist(), xy.tolist(), strict=True):
-        out.append(gtsam.GenericProjectionFactorCal3_S2(
-            gtsam.Point2(fx * x + cx, fy * y + cy), noise, camera_pose_key(f, camera),
-            point_key(camera, lm), calibration))
+        pixel = gtsam.Point2(fx * x + cx, fy * y + cy)
+        key, point = pose_key(f, camera), point_key(camera, lm)
+        out.append(gtsam.GenericProjectionFactorCal3_S2(pixel, noise, key, point, calibration)
+                   if mount is None else
+                   gtsam.GenericProjectionFactorCal3_S2(pixel, noise, key, point, calibration,
+                                                        mount))
     return out

@@ -35,7 +35,7 @@ from apcc_graph.estimation.initial_guess import FrameRows
 from apcc_graph.estimation.robust import enough_rows, gnc_tls_weights
 from apcc_graph.factors.keys import camera_pose_key, point_key
 from apcc_graph.factors.landmark import camera_pose_factor, observation_factors
-from apcc_graph.factors.projection import CameraChain, robust_residual_norms
+from apcc_graph.factors.projection import CameraChain
 from apcc_graph.factors.track_points import TrackObservations
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
@@ -47,6 +47,10 @@ ChainLookup = Callable[[int, int, int], CameraChain]
 """``(camera, first, last) -> the camera's chain over frames first .. last``."""
 FrameLookup = Callable[[int], tuple[FloatArray, float]]
 """``frame -> (its current angles, its time)``, for frames in the window."""
+RobustPoints = Callable[[int, TrackObservations, FloatArray], tuple[FloatArray, FloatArray]]
+"""``(camera, pieces, gate) -> (each row's whitened residual norm, each piece's point)``: the
+pieces' points found robustly from the rows ``gate`` keeps, at the window's current estimates
+(:meth:`~apcc_graph.estimation.projection_tracks.ProjectionTracks.robust_norms`)."""
 
 
 class Landmarks:
@@ -54,8 +58,9 @@ class Landmarks:
 
     Args:
         robot: the robot (its cameras' pinhole intrinsics for gtsam's projection factors).
-        chain: the camera chains over frames of the window.
-        frame: a frame's current angles and time.
+        chain: the camera chains over frames of the window (``None`` for a subclass whose
+            observations attach to other variables than camera poses: :meth:`_attach`).
+        frame: a frame's current angles and time (the same).
         sigma_px: the tracks' pixel noise (pixels).
         inlier_sigmas: outlier threshold on whitened residual norms.
         lag: the smoother's window (seconds).
@@ -65,7 +70,8 @@ class Landmarks:
         dim: the length of a frame's vector (default S; 2 S for a spatial robot).
     """
 
-    def __init__(self, robot: Robot, chain: ChainLookup, frame: FrameLookup, sigma_px: float,
+    def __init__(self, robot: Robot, chain: ChainLookup | None, frame: FrameLookup | None,
+                 sigma_px: float,
                  inlier_sigmas: float,
                  lag: float, max_per_camera: int = 10, prior_sigma: float = 10.0,
                  pose_sigma: float = 1e-4, dim: int | None = None) -> None:
@@ -123,41 +129,36 @@ class Landmarks:
         self._poses = {(g, c) for g, c in self._poses if g not in gone}
 
     def promote(self, add: Additions, cam: int, obs: TrackObservations,
-                tracks: Mapping[int, int], thetas: FloatArray, t: float,
+                tracks: Mapping[int, int], robust: RobustPoints, t: float,
                 gate: FloatArray | None = None) -> tuple[int, int]:
         """Make landmarks of camera ``cam``'s pieces ``obs`` (ids are piece ids; ``tracks``
-        maps their track ids to them; ``thetas`` are the angles of their frames; ``gate``:
-        the model-free gate's weight per row, default 1). Returns the observations taken and
-        how many of them were judged outliers."""
-        first, last = int(obs.frames.min()), int(obs.frames.max())
-        chain = self.chain(cam, first, last)
+        maps their track ids to them; ``robust`` finds their points and judges their rows;
+        ``gate``: the model-free gate's weight per row, default 1). Returns the observations
+        taken and how many of them were judged outliers."""
         gate = np.ones(len(obs)) if gate is None else gate * enough_rows(gate, obs.tracks,
                                                                          obs.starts, 2)
-        norms, points = robust_residual_norms(obs, chain, thetas, first, gate)
+        norms, points = robust(cam, obs, gate)
         weights = gnc_tls_weights(norms, self.inlier_sigmas, math.inf) * gate
         outliers = int(np.sum(weights == 0.0))
         inliers = np.add.reduceat(weights > 0.0, obs.starts[:-1])
-        keep = np.flatnonzero(inliers >= 2)
+        keep = np.flatnonzero((inliers >= 2) & np.all(np.isfinite(points), axis=1))
         if len(keep) == 0:
             return len(obs), outliers
         rows = np.concatenate([np.arange(obs.starts[i], obs.starts[i + 1]) for i in keep])
         rows = rows[weights[rows] > 0.0]
         piece_track = {piece: tid for tid, piece in tracks.items()}
-        noise = gtsam.noiseModel.Isotropic.Sigma(3, self.prior_sigma)
         for i in keep.tolist():
             piece, point = int(obs.ids[i]), points[i]
             key = point_key(cam, piece)
+            noise = gtsam.noiseModel.Isotropic.Sigma(
+                3, self._prior_sigma(cam, int(obs.frames[obs.starts[i]]), point))
             add.values.insert(key, gtsam.Point3(*point))
             add.graph.add(gtsam.PriorFactorPoint3(key, gtsam.Point3(*point), noise))
             add.stamps[key] = t
             self.points[piece] = point.copy()
             self._seen[piece] = t
             self._of[cam][piece_track[piece]] = piece
-        for g in np.unique(obs.frames[rows]).tolist():
-            self._ensure_pose(add, g, cam)
-        for factor in observation_factors(obs.frames[rows], cam, obs.ids[obs.tracks[rows]],
-                                          obs.xy[rows], self._intrinsics[cam], self.sigma_px):
-            add.graph.add(factor)
+        self._attach(add, obs.frames[rows], cam, obs.ids[obs.tracks[rows]], obs.xy[rows])
         return len(obs), outliers
 
     def observe(self, add: Additions, f: int, t: float, cam: int, pieces: NDArray[np.int64],
@@ -168,12 +169,8 @@ class Landmarks:
             add.stamps[point_key(cam, piece)] = t
             self._seen[piece] = t
         good = weights > 0.0
-        if not good.any():
-            return
-        self._ensure_pose(add, f, cam)
-        for factor in observation_factors(np.full(int(good.sum()), f), cam, pieces[good],
-                                          xy[good], self._intrinsics[cam], self.sigma_px):
-            add.graph.add(factor)
+        if good.any():
+            self._attach(add, np.full(int(good.sum()), f), cam, pieces[good], xy[good])
 
     def update_points(self, estimate: gtsam.Values) -> None:
         """Take the landmarks' points from the smoother's estimate."""
@@ -183,12 +180,29 @@ class Landmarks:
                 if estimate.exists(key):
                     self.points[piece] = np.asarray(estimate.atPoint3(key), dtype=float)
 
+    def _prior_sigma(self, cam: int, frame: int, point: FloatArray) -> float:
+        """A new landmark's weak prior (metres): ``prior_sigma`` (camera ``cam`` first saw
+        ``point`` at ``frame``)."""
+        return self.prior_sigma
+
+    def _attach(self, add: Additions, frames: NDArray[np.int64], cam: int,
+                pieces: NDArray[np.int64], xy: FloatArray) -> None:
+        """Inlier observations of landmarks ``pieces`` into the graph: gtsam's projection
+        factors on camera ``cam``'s pose variables of ``frames``, each created when first
+        needed and tied to its frame's angles."""
+        for g in np.unique(frames).tolist():
+            self._ensure_pose(add, g, cam)
+        for factor in observation_factors(frames, cam, pieces, xy, self._intrinsics[cam],
+                                          self.sigma_px):
+            add.graph.add(factor)
+
     def _ensure_pose(self, add: Additions, g: int, cam: int) -> None:
         """Camera ``cam``'s pose variable at frame ``g``, tied to the frame's angles, created
         when a landmark observation first needs it (a pose without observations would be
         held by the stiff tie alone: a badly conditioned system)."""
         if (g, cam) in self._poses:
             return
+        assert self.chain is not None and self.frame is not None
         chain = self.chain(cam, g, g)
         thetas, time = self.frame(g)
         pose = chain.poses(thetas[None, :], g, False)[0][0]

@@ -8,10 +8,12 @@ segment's model noise (``GraphOptions.model_sigma``, by default the robot file's
 model's tips moved by the previous frame's departure from the model (the model error changes
 slowly). What a track's rows become: rows of projection factors over the cameras' tips, each
 track's point eliminated inside its factor, live pieces replaced at every update and committed
-pieces for good (:mod:`~apcc_graph.estimation.tip_tracks`); outliers are decided first without
-the model (the rotation gate, :data:`GATE`), then against each piece's robust point at the
-current tips. How an estimate is read back: the frames' vectors (the core), the tips and the
-live pieces' points (here).
+pieces for good (:mod:`~apcc_graph.estimation.tip_tracks`), and a track that outlives the
+window becomes a landmark, its point a variable seen from the tips (as in the exact model,
+:mod:`~apcc_graph.estimation.smoother.pieces`); outliers are decided first without the model
+(the rotation gate, :data:`GATE`), then against each piece's robust point at the current tips.
+How an estimate is read back: the frames' vectors (the core), the tips, the live pieces' and
+the landmarks' points (here).
 """
 
 from __future__ import annotations
@@ -26,11 +28,12 @@ from apcc_graph.estimation.initial_guess import FrameRows
 from apcc_graph.estimation.model_noise import segment_correlations
 from apcc_graph.estimation.model_ties import ModelTies
 from apcc_graph.estimation.options import GraphOptions
-from apcc_graph.estimation.projection_tracks import LiveFactor, Rows
+from apcc_graph.estimation.projection_tracks import Rows
+from apcc_graph.estimation.smoother.pieces import Association, PieceWindow
 from apcc_graph.estimation.smoother.solver import Additions
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.terms.noisy import forward_tips
-from apcc_graph.estimation.tip_tracks import TipTracks
+from apcc_graph.estimation.tip_tracks import TipLandmarks, TipTracks
 from apcc_graph.estimation.window import Window
 from apcc_graph.factors.keys import elimination_group, frame_key, tip_key
 from apcc_graph.model.arrays import FloatArray
@@ -46,8 +49,9 @@ GATE = 0.02
 the batch with model noise decides its first outliers with the same."""
 
 
-class NoisyTracks:
-    """Model error as noise: tip poses, ties and track pieces in a smoother's window.
+class NoisyTracks(PieceWindow):
+    """Model error as noise: tip poses, ties, track pieces and landmarks in a smoother's
+    window.
 
     Args:
         robot, options, settings, bending: the smoother's.
@@ -80,55 +84,23 @@ class NoisyTracks:
         self._models: dict[int, FloatArray] = {}  # frame -> the model's tips at its estimate
         self._bases: dict[int, FloatArray] = {}
         self._x: dict[int, FloatArray] = {}  # frame -> its vector's estimate
-        self.tracks = TipTracks(robot, options, settings, window, bending, inlier_sigmas,
-                                self._tips)
-        self._mounts = {c: T[:3, :3] for c, T in self.tracks.mounts.items()}
-        self._live: list[LiveFactor] = []
-        self._full_window: int | None = None  # frames in a full window, once one left
-
-    @property
-    def committed(self) -> int:
-        """Observations committed into the graph so far (each exactly once)."""
-        return self.tracks.committed
-
-    @property
-    def outliers(self) -> int:
-        """Committed observations judged outliers so far."""
-        return self.tracks.outliers
-
-    def known(self, cam: int, ids: NDArray[np.int64]) -> NDArray[np.bool_]:
-        """Which of a camera's track ids the window knows (live tracks)."""
-        return self.tracks.live.piece_ids(cam, ids) >= 0
-
-    def judge(self, frame: int, agreed: Mapping[int, tuple[NDArray[np.int64],
-                                                           NDArray[np.bool_]]]) -> None:
-        """The rotation gate's judgement of frame ``frame``'s rows by the next frame."""
-        for cam, (ids, agree) in agreed.items():
-            self.tracks.live.judge(frame, cam, ids, agree)
-
-    def make_room(self, add: Additions, f: int, t: float, rows: Rows, leaving: list[int],
-                  first_kept: int, commit: bool) -> None:
-        """Before frame ``f`` enters: the pieces that are due are committed (before their
-        first frames leave; ``commit``: those whose tracks ended too)."""
-        seen = {c: ids for c, (ids, _, _) in rows.items()}
-        if leaving:  # the window is full: its length in frames, for the staggered cuts
-            self._full_window = f - first_kept
-        for cam, obs in self.tracks.live.take_due(f, seen, first_kept, commit,
-                                                  window=self._full_window).items():
-            self.tracks.commit(add.graph, cam, obs)
+        tracks = TipTracks(robot, options, settings, window, bending, inlier_sigmas, self._tips)
+        landmarks = TipLandmarks(robot, self._tips, tracks.mounts, options.threshold_px,
+                                 inlier_sigmas, settings.window.lag,
+                                 settings.landmarks.max_per_camera,
+                                 settings.landmarks.prior_sigma)
+        super().__init__(settings, tracks, landmarks)
+        self._mounts = {c: T[:3, :3] for c, T in tracks.mounts.items()}
 
     def retire(self, leaving: list[int], first_kept: int) -> None:
         """Frames ``leaving`` left the window."""
         for g in leaving:
             for held in (self._tips, self._models, self._bases, self._x):
                 held.pop(g, None)
-        self.tracks.live.drop_frames_before(first_kept)
+        super().retire(leaving, first_kept)
 
-    def associate(self, rows: Rows) -> None:
-        """Rows are associated with their pieces as they are observed."""
-        return None
-
-    def known_rows(self, rows: Rows, marks: None, gates: Mapping[int, FloatArray] | None = None
+    def known_rows(self, rows: Rows, marks: Association,
+                   gates: Mapping[int, FloatArray] | None = None
                    ) -> tuple[list[FrameRows], list[tuple[int, NDArray[np.bool_]]]]:
         """None: a new frame starts at the motion's prediction moved by the cameras'
         rotations. (Refined against the points at the last estimate, through the model's
@@ -155,28 +127,9 @@ class NoisyTracks:
         for factor in self._ties.frame(f, x, base, previous):
             add.graph.add(factor)
 
-    def observe(self, add: Additions, f: int, t: float, rows: Rows, marks: None,
-                weights: Mapping[int, FloatArray], verdicts: Mapping[int, NDArray[np.int8]],
-                accepted: Mapping[int, NDArray[np.int64]]) -> None:
-        """Frame ``f``'s rows into their live pieces, with the gate's verdicts (which the next
-        frame may still change); ``weights`` and ``accepted`` are the exact model's."""
-        for cam, (ids, xy, whiten) in rows.items():
-            self.tracks.live.add(f, cam, ids, xy, whiten, None, verdicts[cam])
-
-    def replay(self, add: Additions, h: int, t: float, rows: Rows,
-               verdicts: Mapping[int, NDArray[np.int8]], base: FloatArray | None) -> None:
-        """A kept frame's rows after a restart (its tips entered by :meth:`enter`)."""
-        self.observe(add, h, t, rows, None, {}, verdicts, {})
-
-    def replaceable(self, graph: gtsam.NonlinearFactorGraph) -> list[int]:
-        """The live projection factors, added to ``graph``; their positions there (the
-        solver replaces them at the next update)."""
-        self._live = self.tracks.live_factors(graph)
-        return [pos for pos, *_ in self._live]
-
     def read(self, estimate: gtsam.Values) -> None:
-        """After an update: the tips, the model's tips at the new vectors, and the live
-        factors' points."""
+        """After an update: the tips, the model's tips at the new vectors, the live factors'
+        points and the landmarks' points."""
         for g in self._tips:
             if not estimate.exists(frame_key(g)):
                 continue
@@ -184,16 +137,14 @@ class NoisyTracks:
             self._tips[g] = np.array([estimate.atPose3(tip_key(g, j)).matrix()
                                       for j in range(self.n_segments)])
             self._models[g] = forward_tips(self.bending, x[None], self._bases[g][None])[0]
-        self.tracks.keep_points(self._live)
+        super().read(estimate)
 
     def reset(self, keep: int | None = None, base: FloatArray | None = None) -> None:
-        """Forget every piece and tip (a new window); the rows of frame ``keep`` (the one it
-        holds) start new pieces."""
-        self.tracks.reset(keep=keep)
-        self.tracks.bases = {}
+        """Forget every piece, landmark and tip (a new window); the rows of frame ``keep``
+        (the one it holds) start new pieces."""
+        super().reset(keep, base)
         for held in (self._tips, self._models, self._bases, self._x):
             held.clear()
-        self._live = []
 
     def restart_frame(self, add: Additions, f: int, t: float, x: FloatArray,
                       base: FloatArray | None) -> None:
@@ -211,9 +162,3 @@ class NoisyTracks:
         if tips is None:
             return {}
         return {c: tips[c][:3, :3] @ mount for c, mount in self._mounts.items()}
-
-    def finish(self, add: Additions, t: float) -> None:
-        """Commit every live piece (the end of the stream)."""
-        for cam, obs in self.tracks.live.take_all().items():
-            self.tracks.commit(add.graph, cam, obs)
-        self._live = []
