@@ -17,9 +17,11 @@ point and a ``Pose3`` variable per frame and camera, ``world_T_cam``
 (:func:`~apcc_graph.factors.keys.camera_pose_key`),
 one factor per observation: each row then depends on its own point only, the structure sparse
 elimination needs (a Python factor over many points would make the smoother's cliques dense),
-and C++ factors cost no Python time. The pixel is the undistorted one (``fx x + cx``,
-``fy y + cy``) with an isotropic noise: exact for a pinhole camera, an approximation of the
-whitening under lens distortion.
+and C++ factors cost no Python time. With model error as noise the same factors hang from the
+segment's tip pose (:func:`~apcc_graph.factors.keys.tip_key`) with the camera's mounting as
+gtsam's body pose, and no camera-pose variable is needed. The pixel is the undistorted one
+(``fx x + cx``, ``fy y + cy``) with an isotropic noise: exact for a pinhole camera, an
+approximation of the whitening under lens distortion.
 
 A camera-pose variable is tied to its frame's angles by :func:`camera_pose_factor`::
 

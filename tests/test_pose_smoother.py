@@ -18,7 +18,7 @@ from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother.fixed_lag import FixedLagISAM2
 from apcc_graph.estimation.smoother.solver import Additions
-from apcc_graph.estimation.smoother_options import SmootherOptions
+from apcc_graph.estimation.smoother_options import LandmarkOptions, SmootherOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
 from apcc_graph.estimation.tip_tracks import TipLandmarks, TipTracks
 from apcc_graph.estimation.window import RestartWarning
@@ -183,18 +183,21 @@ def test_an_elimination_order_with_more_groups_than_keys_is_safe_and_changes_not
     assert min(ordered.stamps.values()) >= 3.9 - 1.0 - 0.25  # it marginalised
 
 
+@pytest.mark.parametrize("landmarks", [False, True])
 def test_the_window_holds_vectors_tips_and_landmarks_and_every_factor_is_over_the_tips(
-        ) -> None:
+        landmarks: bool) -> None:
     """Model error as noise (the default, from the robot file): every variable in the window
-    is a frame vector, a tip pose or a landmark's point (no camera-pose variable: the
-    landmarks' observations hang from the tips through the mounting; a piece's point is
-    eliminated inside its factor), the piece factors span several tips, a landmark's
-    factors are its prior and projections from one tip each, at most ``max_per_camera``
-    landmarks per camera are live, and every observation enters once (a second finish adds
-    nothing)."""
+    is a frame vector, a tip pose or, when asked for (``LandmarkOptions.with_model_noise``;
+    none by default), a landmark's point: never a camera-pose variable (the landmarks'
+    observations hang from the tips through the mounting; a piece's point is eliminated
+    inside its factor). The piece factors span several tips, a landmark's factors are its
+    prior and projections from one tip each, at most ``max_per_camera`` landmarks per camera
+    are live, and every observation enters once (a second finish adds nothing)."""
     model, seq, truth, floor = fast_stretch_replay(60, exact=False)
+    settings = SmootherOptions(landmarks=LandmarkOptions(with_model_noise=landmarks))
     smoother = FixedLagSmoother(seq.robot, options=GraphOptions(theta0_sigma=START_SIGMA),
-                                theta0=floor.thetas[0], psi0=floor.psis[0], spatial=True)
+                                theta0=floor.thetas[0], psi0=floor.psis[0], spatial=True,
+                                settings=settings)
     assert smoother.measurement_model == "model noise"
     cap = smoother.settings.landmarks.max_per_camera
     most = 0
@@ -215,8 +218,11 @@ def test_the_window_holds_vectors_tips_and_landmarks_and_every_factor_is_over_th
             if "l" in letters and len(letters) <= 2:  # not a marginal of left frames
                 assert letters in (["l"], ["t", "l"]), letters
                 seen_from_tips += int(letters == ["t", "l"])
-        assert kinds == {"x", "t", "l"} and over_tips > 0 and seen_from_tips > 0
-        assert 0 < most <= cap
+        if landmarks:
+            assert kinds == {"x", "t", "l"} and over_tips > 0 and seen_from_tips > 0
+            assert 0 < most <= cap
+        else:
+            assert kinds == {"x", "t"} and over_tips > 0 and most == 0
         smoother.finish()
         committed = smoother.committed_observations
         smoother.finish()
@@ -268,7 +274,8 @@ def test_a_landmark_hangs_from_the_tips_through_the_mounting() -> None:
     25 sigma off. Promoted to landmarks over the tips: each point is a variable at its
     robust point under a prior of ten times its depth (4 m, under the 10 m cap), the outlier
     row is left out, and the other rows are gtsam's projection factors on the tip keys whose
-    error vanishes at the true tips and points, and grows when a tip moves."""
+    error vanishes at the true tips and points, and grows when a tip moves. A later frame's
+    observation 20 px from its landmark's projection at that frame's tips is left out."""
     model, seq, truth, floor = fast_stretch_replay(2, exact=False)
     robot = seq.robot
     cam = robot.camera_segments[-1]
@@ -314,3 +321,16 @@ def test_a_landmark_hangs_from_the_tips_through_the_mounting() -> None:
     assert max(p.error(values) for p in projections) < 1e-12
     values.update(tip_key(4, cam), gtsam.Pose3(tips[4][cam]).retract(np.r_[0, 0, 0, 0.001, 0, 0]))
     assert max(p.error(values) for p in projections) > 0.1  # 1 mm at 0.4 m: about 1 px
+    # A new frame's observations are judged against the landmarks' points at its first tips:
+    # one 20 px off stays out, the other enters on the frame's tip.
+    seen = []
+    for point in points:
+        local = np.linalg.inv(tips[5][cam] @ mount) @ np.append(point, 1.0)
+        seen.append(local[:2] / local[2])
+    seen = np.array(seen)
+    seen[1, 1] += 20.0 / 500.0
+    more = Additions()
+    left_out = landmarks.observe(more, 5, 0.6, cam, np.array([3, 9]), seen, np.ones(2))
+    assert left_out == 1 and more.graph.size() == 1
+    assert list(more.graph.at(0).keys()) == [tip_key(5, cam), point_key(cam, 3)]
+    assert more.stamps[point_key(cam, 9)] == 0.6  # seen, so kept in the window

@@ -14,7 +14,9 @@ such tracks instead (at most ``max_per_camera`` per camera at a time):
   guess, join the same way, and the landmarks seen keep a fresh timestamp, so the smoother keeps
   them;
 - the observations attach to a ``Pose3`` per frame and camera, created when first needed and
-  tied to the frame's angles (:func:`apcc_graph.factors.landmark.camera_pose_factor`);
+  tied to the frame's angles (:func:`apcc_graph.factors.landmark.camera_pose_factor`); with
+  model error as noise they hang from the tip poses instead
+  (:class:`~apcc_graph.estimation.tip_tracks.TipLandmarks` overrides :meth:`Landmarks._attach`);
 - :meth:`Landmarks.forget`: a landmark whose track ended (or went unseen for most of a lag) gets
   no more observations, and the smoother marginalises it once it is older than the lag.
 
@@ -162,15 +164,16 @@ class Landmarks:
         return len(obs), outliers
 
     def observe(self, add: Additions, f: int, t: float, cam: int, pieces: NDArray[np.int64],
-                xy: FloatArray, weights: FloatArray) -> None:
+                xy: FloatArray, weights: FloatArray) -> int:
         """Frame ``f``'s observations of landmarks ``pieces`` (judged by the initial guess:
-        ``weights`` 0 for an outlier)."""
+        ``weights`` 0 for an outlier); how many of them were left out."""
         for piece in pieces.tolist():
             add.stamps[point_key(cam, piece)] = t
             self._seen[piece] = t
         good = weights > 0.0
         if good.any():
             self._attach(add, np.full(int(good.sum()), f), cam, pieces[good], xy[good])
+        return int(np.sum(~good))
 
     def update_points(self, estimate: gtsam.Values) -> None:
         """Take the landmarks' points from the smoother's estimate."""

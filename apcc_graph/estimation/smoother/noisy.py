@@ -8,12 +8,12 @@ segment's model noise (``GraphOptions.model_sigma``, by default the robot file's
 model's tips moved by the previous frame's departure from the model (the model error changes
 slowly). What a track's rows become: rows of projection factors over the cameras' tips, each
 track's point eliminated inside its factor, live pieces replaced at every update and committed
-pieces for good (:mod:`~apcc_graph.estimation.tip_tracks`), and a track that outlives the
-window becomes a landmark, its point a variable seen from the tips (as in the exact model,
-:mod:`~apcc_graph.estimation.smoother.pieces`); outliers are decided first without the model
+pieces for good (:mod:`~apcc_graph.estimation.tip_tracks`); a track that outlives the window
+is cut, unless ``LandmarkOptions.with_model_noise`` asks for landmarks, points seen from the
+tips (:mod:`~apcc_graph.estimation.smoother.pieces`); outliers are decided first without the model
 (the rotation gate, :data:`GATE`), then against each piece's robust point at the current tips.
 How an estimate is read back: the frames' vectors (the core), the tips, the live pieces' and
-the landmarks' points (here).
+any landmarks' points (here).
 """
 
 from __future__ import annotations
@@ -50,8 +50,8 @@ the batch with model noise decides its first outliers with the same."""
 
 
 class NoisyTracks(PieceWindow):
-    """Model error as noise: tip poses, ties, track pieces and landmarks in a smoother's
-    window.
+    """Model error as noise: tip poses, ties, track pieces (and landmarks, when asked for) in
+    a smoother's window.
 
     Args:
         robot, options, settings, bending: the smoother's.
@@ -89,7 +89,8 @@ class NoisyTracks(PieceWindow):
                                  inlier_sigmas, settings.window.lag,
                                  settings.landmarks.max_per_camera,
                                  settings.landmarks.prior_sigma)
-        super().__init__(settings, tracks, landmarks)
+        super().__init__(settings, tracks, landmarks,
+                         settings.landmarks.enabled and settings.landmarks.with_model_noise)
         self._mounts = {c: T[:3, :3] for c, T in tracks.mounts.items()}
 
     def retire(self, leaving: list[int], first_kept: int) -> None:

@@ -34,6 +34,8 @@ class PieceWindow:
         settings: the smoother's.
         tracks: the pieces (and how they are projected).
         landmarks: the landmarks (and how their observations attach).
+        promote: tracks that outlive the window become landmarks (else they are cut into
+            pieces, and ``landmarks`` stays empty).
     """
 
     pair_weights = False
@@ -41,8 +43,9 @@ class PieceWindow:
     front end's constraint holds)."""
 
     def __init__(self, settings: SmootherOptions, tracks: ProjectionTracks,
-                 landmarks: Landmarks) -> None:
+                 landmarks: Landmarks, promote: bool) -> None:
         self.settings, self.tracks, self.landmarks = settings, tracks, landmarks
+        self.promote = promote  # tracks that outlive the window become landmarks
         self._full_window: int | None = None  # frames in a full window, once one left
         self._live: list[LiveFactor] = []
 
@@ -74,7 +77,7 @@ class PieceWindow:
         seen = {c: ids for c, (ids, _, _) in rows.items()}
         self.landmarks.forget(seen, t)
         tracks = self.tracks
-        if self.settings.landmarks.enabled:
+        if self.promote:
             promoted = tracks.live.take_continuing(seen, first_kept, self.landmarks.room())
             for cam, (obs, ids) in promoted.items():
                 tracks.count(*self.landmarks.promote(add, cam, obs, ids, tracks.robust_norms,
@@ -114,8 +117,8 @@ class PieceWindow:
             if lm.any():
                 w = gate_weights(verdicts[cam][lm])
                 w = w if pair is None else pair[lm] * w
-                self.landmarks.observe(add, f, t, cam, marks[cam][lm], xy[lm], w)
-                self.tracks.count(int(lm.sum()), int(np.sum(w == 0.0)))
+                left_out = self.landmarks.observe(add, f, t, cam, marks[cam][lm], xy[lm], w)
+                self.tracks.count(int(lm.sum()), left_out)
         if self.pair_weights:
             self.tracks.live.vouch(f, accepted)
 
