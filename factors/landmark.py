@@ -17,11 +17,9 @@ point and a ``Pose3`` variable per frame and camera, ``world_T_cam``
 (:func:`~apcc_graph.factors.keys.camera_pose_key`),
 one factor per observation: each row then depends on its own point only, the structure sparse
 elimination needs (a Python factor over many points would make the smoother's cliques dense),
-and C++ factors cost no Python time. With model error as noise the same factors hang from the
-segment's tip pose (:func:`~apcc_graph.factors.keys.tip_key`) with the camera's mounting as
-gtsam's body pose, and no camera-pose variable is needed. The pixel is the undistorted one
-(``fx x + cx``, ``fy y + cy``) with an isotropic noise: exact for a pinhole camera, an
-approximation of the whitening under lens distortion.
+and C++ factors cost no Python time. The pixel is the undistorted one (``fx x + cx``,
+``fy y + cy``) with an isotropic noise: exact for a pinhole camera, an approximation of the
+whitening under lens distortion.
 
 A camera-pose variable is tied to its frame's angles by :func:`camera_pose_factor`::
 
@@ -37,8 +35,6 @@ dT_cam/dtheta_j)`` the body twist of angle j::
 """
 
 from __future__ import annotations
-
-from collections.abc import Callable
 
 import gtsam
 import numpy as np
@@ -110,9 +106,8 @@ def camera_pose_factor(frame: int, camera: int, chain: CameraChain, n_segments: 
 
 def observation_factors(frames: NDArray[np.int64], camera: int,
                         landmarks: NDArray[np.int64], xy: FloatArray,
-                        calibration: gtsam.Cal3_S2, sigma_px: float,
-                        pose_key: Callable[[int, int], int] = camera_pose_key,
-                        body: FloatArray | None = None) -> list[gtsam.NonlinearFactor]:
+                        calibration: gtsam.Cal3_S2, sigma_px: float
+                        ) -> list[gtsam.NonlinearFactor]:
     """gtsam's C++ projection factors of landmark observations.
 
     Args:
@@ -123,22 +118,13 @@ def observation_factors(frames: NDArray[np.int64], camera: int,
         xy: ``(N, 2)`` undistorted normalised image coordinates.
         calibration: the camera's pinhole intrinsics (``fx, fy, 0, cx, cy``).
         sigma_px: the pixel noise (pixels).
-        pose_key: ``(frame, camera) -> the key of the pose the camera hangs from``: by default
-            the camera's own pose variable; :func:`~apcc_graph.factors.keys.tip_key` for the
-            tip pose of the camera's segment (then ``body`` is the camera's mounting).
-        body: ``(4, 4)`` the camera in the frame of that pose (``None``: the pose is the
-            camera's).
     """
     noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma_px)
     fx, fy = calibration.fx(), calibration.fy()
     cx, cy = calibration.px(), calibration.py()
-    mount = None if body is None else gtsam.Pose3(np.asarray(body, dtype=float))
     out = []
     for f, lm, (x, y) in zip(frames.tolist(), landmarks.tolist(), xy.tolist(), strict=True):
-        pixel = gtsam.Point2(fx * x + cx, fy * y + cy)
-        key, point = pose_key(f, camera), point_key(camera, lm)
-        out.append(gtsam.GenericProjectionFactorCal3_S2(pixel, noise, key, point, calibration)
-                   if mount is None else
-                   gtsam.GenericProjectionFactorCal3_S2(pixel, noise, key, point, calibration,
-                                                        mount))
+        out.append(gtsam.GenericProjectionFactorCal3_S2(
+            gtsam.Point2(fx * x + cx, fy * y + cy), noise, camera_pose_key(f, camera),
+            point_key(camera, lm), calibration))
     return out

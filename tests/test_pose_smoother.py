@@ -17,10 +17,9 @@ from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother.fixed_lag import FixedLagISAM2
-from apcc_graph.estimation.smoother.solver import Additions
-from apcc_graph.estimation.smoother_options import LandmarkOptions, SmootherOptions
+from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.smoother_runs import smoother_estimate
-from apcc_graph.estimation.tip_tracks import TipLandmarks, TipTracks
+from apcc_graph.estimation.tip_tracks import TipTracks
 from apcc_graph.estimation.window import RestartWarning
 from apcc_graph.evaluation.tip_floor import tip_errors
 from apcc_graph.factors.keys import elimination_group, frame_key, kind, point_key, tip_key
@@ -183,46 +182,30 @@ def test_an_elimination_order_with_more_groups_than_keys_is_safe_and_changes_not
     assert min(ordered.stamps.values()) >= 3.9 - 1.0 - 0.25  # it marginalised
 
 
-@pytest.mark.parametrize("landmarks", [False, True])
-def test_the_window_holds_vectors_tips_and_landmarks_and_every_factor_is_over_the_tips(
-        landmarks: bool) -> None:
+def test_the_window_has_no_point_variables_and_its_projection_factors_are_over_the_tips(
+        ) -> None:
     """Model error as noise (the default, from the robot file): every variable in the window
-    is a frame vector, a tip pose or, when asked for (``LandmarkOptions.with_model_noise``;
-    none by default), a landmark's point: never a camera-pose variable (the landmarks'
-    observations hang from the tips through the mounting; a piece's point is eliminated
-    inside its factor). The piece factors span several tips, a landmark's factors are its
-    prior and projections from one tip each, at most ``max_per_camera`` landmarks per camera
-    are live, and every observation enters once (a second finish adds nothing)."""
-    model, seq, truth, floor = fast_stretch_replay(60, exact=False)
-    settings = SmootherOptions(landmarks=LandmarkOptions(with_model_noise=landmarks))
+    is a frame vector or a tip pose (each track's point is eliminated inside its factor), the
+    projection factors span several tips, and every observation enters once (a second finish
+    adds nothing)."""
+    model, seq, truth, floor = fast_stretch_replay(30, exact=False)
     smoother = FixedLagSmoother(seq.robot, options=GraphOptions(theta0_sigma=START_SIGMA),
-                                theta0=floor.thetas[0], psi0=floor.psis[0], spatial=True,
-                                settings=settings)
+                                theta0=floor.thetas[0], psi0=floor.psis[0], spatial=True)
     assert smoother.measurement_model == "model noise"
-    cap = smoother.settings.landmarks.max_per_camera
-    most = 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for f in range(seq.n_frames):
             smoother.update(seq.frame(f))
-            most = max(most, max(len(of) for of in smoother._model.landmarks._of.values()))
         graph = smoother._smoother.getFactors()
-        kinds, over_tips, seen_from_tips = set(), 0, 0
+        kinds, over_tips = set(), 0
         for i in range(graph.size()):
             factor = graph.at(i)
             if factor is None:
                 continue
-            letters = [kind(k) for k in factor.keys()]
-            kinds |= set(letters)
-            over_tips += int(set(letters) == {"t"} and len(letters) > 2)
-            if "l" in letters and len(letters) <= 2:  # not a marginal of left frames
-                assert letters in (["l"], ["t", "l"]), letters
-                seen_from_tips += int(letters == ["t", "l"])
-        if landmarks:
-            assert kinds == {"x", "t", "l"} and over_tips > 0 and seen_from_tips > 0
-            assert 0 < most <= cap
-        else:
-            assert kinds == {"x", "t"} and over_tips > 0 and most == 0
+            letters = {kind(k) for k in factor.keys()}
+            kinds |= letters
+            over_tips += int(letters == {"t"} and len(factor.keys()) > 2)
+        assert kinds == {"x", "t"} and over_tips > 0
         smoother.finish()
         committed = smoother.committed_observations
         smoother.finish()
@@ -267,70 +250,3 @@ def test_a_piece_is_judged_against_its_robust_point_at_the_current_tips() -> Non
     # (the outlier row kept would cost about 25^2 / 2; one triangulation step per
     # linearisation from the robust point leaves a trace)
     assert factor.error(tracks.linear_values(cam, 0, 7)) < 1e-4
-
-
-def test_a_landmark_hangs_from_the_tips_through_the_mounting() -> None:
-    """Eight frames of one camera whose tip slides sideways, two tracks 0.4 m away, one row
-    25 sigma off. Promoted to landmarks over the tips: each point is a variable at its
-    robust point under a prior of ten times its depth (4 m, under the 10 m cap), the outlier
-    row is left out, and the other rows are gtsam's projection factors on the tip keys whose
-    error vanishes at the true tips and points, and grows when a tip moves. A later frame's
-    observation 20 px from its landmark's projection at that frame's tips is left out."""
-    model, seq, truth, floor = fast_stretch_replay(2, exact=False)
-    robot = seq.robot
-    cam = robot.camera_segments[-1]
-    mount = robot.cameras[cam].tip_T_cam
-    tips = {}
-    for f in range(8):
-        tips[f] = np.broadcast_to(np.eye(4), (robot.n_segments, 4, 4)).copy()
-        tips[f][cam, :3, 3] = 0.02 * f * mount[:3, 0]
-    points = [(tips[0][cam] @ mount @ np.array([u, v, 0.4, 1.0]))[:3]
-              for u, v in ((0.02, -0.01), (-0.05, 0.03))]
-    frames, ids, xy = [], [], []
-    for track, point in zip((3, 9), points, strict=True):
-        for f in range(8):
-            local = np.linalg.inv(tips[f][cam] @ mount) @ np.append(point, 1.0)
-            frames.append(f), ids.append(track), xy.append(local[:2] / local[2])
-    xy = np.array(xy)
-    xy[2, 0] += 25.0 / 500.0
-    obs = TrackObservations.build(cam, frames, ids, xy,
-                                  np.broadcast_to(500.0 * np.eye(2), (16, 2, 2)))
-    settings = SmootherOptions()
-    tracks = TipTracks(robot, GraphOptions(), settings, None,  # type: ignore[arg-type]
-                       Bending.free(robot.segments), 3.5, tips)
-    landmarks = TipLandmarks(robot, tips, tracks.mounts, 1.0, 3.5, 1.0, 10, 10.0)
-    add = Additions()
-    # piece ids 3 and 9 are tracks 30 and 90
-    taken, outliers = landmarks.promote(add, cam, obs, {30: 3, 90: 9}, tracks.robust_norms,
-                                        0.5, np.ones(16))
-    assert (taken, outliers) == (16, 1)
-    np.testing.assert_array_equal(landmarks.of(cam, np.array([30, 90, 5])), [3, 9, -1])
-    values = gtsam.Values()
-    for f in range(8):
-        values.insert(tip_key(f, cam), gtsam.Pose3(tips[f][cam]))
-    for piece, point in zip((3, 9), points, strict=True):
-        np.testing.assert_allclose(add.values.atPoint3(point_key(cam, piece)), point, atol=1e-3)
-        values.insert(point_key(cam, piece), gtsam.Point3(*point))
-    priors = [add.graph.at(i) for i in range(add.graph.size()) if add.graph.at(i).size() == 1]
-    projections = [add.graph.at(i) for i in range(add.graph.size())
-                   if add.graph.at(i).size() == 2]
-    assert len(priors) == 2 and len(projections) == 15
-    sigmas = [p.noiseModel().sigmas()[0] for p in priors]
-    np.testing.assert_allclose(sigmas, [4.0, 4.0], rtol=0.02)  # ten times 0.4 m (and a bit)
-    assert {kind(p.keys()[0]) for p in projections} == {"t"}
-    assert max(p.error(values) for p in projections) < 1e-12
-    values.update(tip_key(4, cam), gtsam.Pose3(tips[4][cam]).retract(np.r_[0, 0, 0, 0.001, 0, 0]))
-    assert max(p.error(values) for p in projections) > 0.1  # 1 mm at 0.4 m: about 1 px
-    # A new frame's observations are judged against the landmarks' points at its first tips:
-    # one 20 px off stays out, the other enters on the frame's tip.
-    seen = []
-    for point in points:
-        local = np.linalg.inv(tips[5][cam] @ mount) @ np.append(point, 1.0)
-        seen.append(local[:2] / local[2])
-    seen = np.array(seen)
-    seen[1, 1] += 20.0 / 500.0
-    more = Additions()
-    left_out = landmarks.observe(more, 5, 0.6, cam, np.array([3, 9]), seen, np.ones(2))
-    assert left_out == 1 and more.graph.size() == 1
-    assert list(more.graph.at(0).keys()) == [tip_key(5, cam), point_key(cam, 3)]
-    assert more.stamps[point_key(cam, 9)] == 0.6  # seen, so kept in the window

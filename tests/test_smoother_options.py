@@ -150,8 +150,11 @@ def test_the_smoother_reads_the_nested_values(robot: Robot) -> None:
     assert smoother.settings is settings
     assert smoother.window.lag == 0.5 and not smoother.landmarks.enabled
     assert smoother._window.lag == 0.5  # the window itself
-    marks = smoother._model.landmarks
-    assert marks.lag == 0.5 and marks.max_per_camera == 3 and marks.prior_sigma == 10.0
+    assert smoother._model.landmarks is None  # disabled: tracks that outlive the window are cut
+    on = FixedLagSmoother(robot, settings=replace(settings, landmarks=LandmarkOptions(
+        max_per_camera=3, prior_sigma=2.0)))
+    marks = on._model.landmarks
+    assert marks.lag == 0.5 and marks.max_per_camera == 3 and marks.prior_sigma == 2.0
     assert smoother.gate == 0.03
     assert smoother._still.settle == math.inf
     with pytest.raises(AttributeError):

@@ -14,9 +14,7 @@ such tracks instead (at most ``max_per_camera`` per camera at a time):
   guess, join the same way, and the landmarks seen keep a fresh timestamp, so the smoother keeps
   them;
 - the observations attach to a ``Pose3`` per frame and camera, created when first needed and
-  tied to the frame's angles (:func:`apcc_graph.factors.landmark.camera_pose_factor`); with
-  model error as noise they hang from the tip poses instead
-  (:class:`~apcc_graph.estimation.tip_tracks.TipLandmarks` overrides :meth:`Landmarks._attach`);
+  tied to the frame's angles (:func:`apcc_graph.factors.landmark.camera_pose_factor`);
 - :meth:`Landmarks.forget`: a landmark whose track ended (or went unseen for most of a lag) gets
   no more observations, and the smoother marginalises it once it is older than the lag.
 
@@ -60,9 +58,8 @@ class Landmarks:
 
     Args:
         robot: the robot (its cameras' pinhole intrinsics for gtsam's projection factors).
-        chain: the camera chains over frames of the window (``None`` for a subclass whose
-            observations attach to other variables than camera poses: :meth:`_attach`).
-        frame: a frame's current angles and time (the same).
+        chain: the camera chains over frames of the window.
+        frame: a frame's current angles and time.
         sigma_px: the tracks' pixel noise (pixels).
         inlier_sigmas: outlier threshold on whitened residual norms.
         lag: the smoother's window (seconds).
@@ -72,8 +69,7 @@ class Landmarks:
         dim: the length of a frame's vector (default S; 2 S for a spatial robot).
     """
 
-    def __init__(self, robot: Robot, chain: ChainLookup | None, frame: FrameLookup | None,
-                 sigma_px: float,
+    def __init__(self, robot: Robot, chain: ChainLookup, frame: FrameLookup, sigma_px: float,
                  inlier_sigmas: float,
                  lag: float, max_per_camera: int = 10, prior_sigma: float = 10.0,
                  pose_sigma: float = 1e-4, dim: int | None = None) -> None:
@@ -149,11 +145,10 @@ class Landmarks:
         rows = np.concatenate([np.arange(obs.starts[i], obs.starts[i + 1]) for i in keep])
         rows = rows[weights[rows] > 0.0]
         piece_track = {piece: tid for tid, piece in tracks.items()}
+        noise = gtsam.noiseModel.Isotropic.Sigma(3, self.prior_sigma)
         for i in keep.tolist():
             piece, point = int(obs.ids[i]), points[i]
             key = point_key(cam, piece)
-            noise = gtsam.noiseModel.Isotropic.Sigma(
-                3, self._prior_sigma(cam, int(obs.frames[obs.starts[i]]), point))
             add.values.insert(key, gtsam.Point3(*point))
             add.graph.add(gtsam.PriorFactorPoint3(key, gtsam.Point3(*point), noise))
             add.stamps[key] = t
@@ -183,11 +178,6 @@ class Landmarks:
                 if estimate.exists(key):
                     self.points[piece] = np.asarray(estimate.atPoint3(key), dtype=float)
 
-    def _prior_sigma(self, cam: int, frame: int, point: FloatArray) -> float:
-        """A new landmark's weak prior (metres): ``prior_sigma`` (camera ``cam`` first saw
-        ``point`` at ``frame``)."""
-        return self.prior_sigma
-
     def _attach(self, add: Additions, frames: NDArray[np.int64], cam: int,
                 pieces: NDArray[np.int64], xy: FloatArray) -> None:
         """Inlier observations of landmarks ``pieces`` into the graph: gtsam's projection
@@ -205,7 +195,6 @@ class Landmarks:
         held by the stiff tie alone: a badly conditioned system)."""
         if (g, cam) in self._poses:
             return
-        assert self.chain is not None and self.frame is not None
         chain = self.chain(cam, g, g)
         thetas, time = self.frame(g)
         pose = chain.poses(thetas[None, :], g, False)[0][0]

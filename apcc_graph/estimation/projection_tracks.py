@@ -185,17 +185,19 @@ class ProjectionTracks:
         return values_from(self.span(first, last), range(first, last + 1))
 
     def known_rows(self, rows: Rows, marks: Mapping[int, NDArray[np.int64]],
-                   landmarks: Landmarks, gates: Mapping[int, FloatArray] | None = None
+                   landmarks: Landmarks | None,
+                   gates: Mapping[int, FloatArray] | None = None
                    ) -> tuple[list[FrameRows], list[tuple[int, NDArray[np.bool_]]]]:
         """The new frame's observations of landmarks and of live tracks whose points are known
         from at least ``settings.tracks.min_live_rows`` observations (a vouched piece's point from
         two close frames is too loose to check a new observation against), and per entry the camera
         and the mask of those rows; rows with a gate weight of 0 in ``gates`` (camera -> per
-        row) are left out."""
+        row) are left out; ``landmarks``: ``None`` where there are none)."""
         out, masks = [], []
         for cam, (ids, xy, whiten) in rows.items():
             open_ = np.ones(len(ids), dtype=bool) if gates is None else gates[cam] > 0.0
-            found = landmarks.known_rows(cam, np.where(open_, marks[cam], -1), xy, whiten)
+            found = (None if landmarks is None else
+                     landmarks.known_rows(cam, np.where(open_, marks[cam], -1), xy, whiten))
             if found is not None:
                 out.append(found[0])
                 masks.append((cam, found[1]))

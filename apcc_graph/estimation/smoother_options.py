@@ -162,23 +162,16 @@ class LandmarkOptions:
             variables, which the landmarks' observations attach to (radians and metres).
         max_per_camera: most landmarks per camera at a time (each update re-eliminates every
             landmark seen in the new frame); the other tracks that outlive the window are cut.
-        with_model_noise: landmarks with model error as noise too, their observations
-            hanging from the tip poses (:class:`~apcc_graph.estimation.tip_tracks.
-            TipLandmarks`). Off by default: on replays of the real robot it was better on
-            the recording it was first tried on and worse or no better on others, and its
-            sigmas covered its errors less well (``docs/estimation.md``, "The smoother with
-            model noise").
     """
 
     enabled: bool = True
     prior_sigma: float = 10.0
     pose_sigma: float = 1e-4
     max_per_camera: int = 10
-    with_model_noise: bool = False
 
     def __post_init__(self) -> None:
         _coerce(self, {"enabled": bool, "prior_sigma": float, "pose_sigma": float,
-                       "max_per_camera": int, "with_model_noise": bool})
+                       "max_per_camera": int})
         _positive(self, "prior_sigma", self.prior_sigma, "metres")
         _positive(self, "pose_sigma", self.pose_sigma, "radians and metres")
         _at_least(self, "max_per_camera", self.max_per_camera, 0, "landmarks per camera")

@@ -58,7 +58,7 @@ class ExactTracks(PieceWindow):
                               settings.landmarks.max_per_camera,
                               settings.landmarks.prior_sigma,
                               settings.landmarks.pose_sigma, tracks.dim)
-        super().__init__(settings, tracks, landmarks, settings.landmarks.enabled)
+        super().__init__(settings, tracks, landmarks if settings.landmarks.enabled else None)
 
     def known_rows(self, rows: Rows, marks: Association,
                    gates: Mapping[int, FloatArray] | None = None

@@ -8,12 +8,13 @@ segment's model noise (``GraphOptions.model_sigma``, by default the robot file's
 model's tips moved by the previous frame's departure from the model (the model error changes
 slowly). What a track's rows become: rows of projection factors over the cameras' tips, each
 track's point eliminated inside its factor, live pieces replaced at every update and committed
-pieces for good (:mod:`~apcc_graph.estimation.tip_tracks`); a track that outlives the window
-is cut, unless ``LandmarkOptions.with_model_noise`` asks for landmarks, points seen from the
-tips (:mod:`~apcc_graph.estimation.smoother.pieces`); outliers are decided first without the model
+pieces for good (:mod:`~apcc_graph.estimation.tip_tracks`,
+:mod:`~apcc_graph.estimation.smoother.pieces`); a track that outlives the window is cut (no
+landmarks: with their points as variables seen from the tips, the tips of replays of the real
+robot were better on one seed and far worse on others); outliers are decided first without the model
 (the rotation gate, :data:`GATE`), then against each piece's robust point at the current tips.
-How an estimate is read back: the frames' vectors (the core), the tips, the live pieces' and
-any landmarks' points (here).
+How an estimate is read back: the frames' vectors (the core), the tips and the live pieces'
+points (here).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from apcc_graph.estimation.smoother.pieces import Association, PieceWindow
 from apcc_graph.estimation.smoother.solver import Additions
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.terms.noisy import forward_tips
-from apcc_graph.estimation.tip_tracks import TipLandmarks, TipTracks
+from apcc_graph.estimation.tip_tracks import TipTracks
 from apcc_graph.estimation.window import Window
 from apcc_graph.factors.keys import elimination_group, frame_key, tip_key
 from apcc_graph.model.arrays import FloatArray
@@ -50,8 +51,7 @@ the batch with model noise decides its first outliers with the same."""
 
 
 class NoisyTracks(PieceWindow):
-    """Model error as noise: tip poses, ties, track pieces (and landmarks, when asked for) in
-    a smoother's window.
+    """Model error as noise: tip poses, ties and track pieces in a smoother's window.
 
     Args:
         robot, options, settings, bending: the smoother's.
@@ -85,12 +85,7 @@ class NoisyTracks(PieceWindow):
         self._bases: dict[int, FloatArray] = {}
         self._x: dict[int, FloatArray] = {}  # frame -> its vector's estimate
         tracks = TipTracks(robot, options, settings, window, bending, inlier_sigmas, self._tips)
-        landmarks = TipLandmarks(robot, self._tips, tracks.mounts, options.threshold_px,
-                                 inlier_sigmas, settings.window.lag,
-                                 settings.landmarks.max_per_camera,
-                                 settings.landmarks.prior_sigma)
-        super().__init__(settings, tracks, landmarks,
-                         settings.landmarks.enabled and settings.landmarks.with_model_noise)
+        super().__init__(settings, tracks, None)  # no landmarks: docs/estimation.md
         self._mounts = {c: T[:3, :3] for c, T in tracks.mounts.items()}
 
     def retire(self, leaving: list[int], first_kept: int) -> None:
@@ -129,8 +124,8 @@ class NoisyTracks(PieceWindow):
             add.graph.add(factor)
 
     def read(self, estimate: gtsam.Values) -> None:
-        """After an update: the tips, the model's tips at the new vectors, the live factors'
-        points and the landmarks' points."""
+        """After an update: the tips, the model's tips at the new vectors, and the live
+        factors' points."""
         for g in self._tips:
             if not estimate.exists(frame_key(g)):
                 continue
@@ -141,7 +136,7 @@ class NoisyTracks(PieceWindow):
         super().read(estimate)
 
     def reset(self, keep: int | None = None, base: FloatArray | None = None) -> None:
-        """Forget every piece, landmark and tip (a new window); the rows of frame ``keep``
+        """Forget every piece and tip (a new window); the rows of frame ``keep``
         (the one it holds) start new pieces."""
         super().reset(keep, base)
         for held in (self._tips, self._models, self._bases, self._x):

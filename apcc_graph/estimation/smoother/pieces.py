@@ -1,11 +1,13 @@
 """What the smoother's two measurement models share (:class:`PieceWindow`): a track's rows go
-to a live piece, replaced at every update, until the piece is committed for good or its track,
-outliving the window, becomes a landmark.
+to a live piece, replaced at every update, until the piece is committed for good or (where
+the model has landmarks) its track, outliving the window, becomes a landmark.
 
-The models differ in what the pieces and landmarks are projected through (the exact model's
-camera poses, :mod:`~apcc_graph.estimation.smoother.exact`; the tips, with model error as
-noise, :mod:`~apcc_graph.estimation.smoother.noisy`) and in what a frame adds; the order of
-the stages, which decides that every observation enters the graph exactly once, is here.
+The models differ in what the pieces are projected through (the exact model's camera poses,
+:mod:`~apcc_graph.estimation.smoother.exact`; the tips, with model error as noise,
+:mod:`~apcc_graph.estimation.smoother.noisy`), in whether there are landmarks (the exact
+model's; with model error as noise a track that outlives the window is cut), and in what a
+frame adds; the order of the stages, which decides that every observation enters the graph
+exactly once, is here.
 """
 
 from __future__ import annotations
@@ -33,9 +35,8 @@ class PieceWindow:
     Args:
         settings: the smoother's.
         tracks: the pieces (and how they are projected).
-        landmarks: the landmarks (and how their observations attach).
-        promote: tracks that outlive the window become landmarks (else they are cut into
-            pieces, and ``landmarks`` stays empty).
+        landmarks: the landmarks (and how their observations attach); ``None``: a track that
+            outlives the window is cut into pieces.
     """
 
     pair_weights = False
@@ -43,9 +44,8 @@ class PieceWindow:
     front end's constraint holds)."""
 
     def __init__(self, settings: SmootherOptions, tracks: ProjectionTracks,
-                 landmarks: Landmarks, promote: bool) -> None:
+                 landmarks: Landmarks | None) -> None:
         self.settings, self.tracks, self.landmarks = settings, tracks, landmarks
-        self.promote = promote  # tracks that outlive the window become landmarks
         self._full_window: int | None = None  # frames in a full window, once one left
         self._live: list[LiveFactor] = []
 
@@ -61,7 +61,8 @@ class PieceWindow:
 
     def known(self, cam: int, ids: NDArray[np.int64]) -> NDArray[np.bool_]:
         """Which of a camera's track ids the window knows (landmarks or live tracks)."""
-        return (self.landmarks.of(cam, ids) >= 0) | (self.tracks.live.piece_ids(cam, ids) >= 0)
+        live = self.tracks.live.piece_ids(cam, ids) >= 0
+        return live if self.landmarks is None else (self.landmarks.of(cam, ids) >= 0) | live
 
     def judge(self, frame: int, agreed: Mapping[int, tuple[NDArray[np.int64],
                                                            NDArray[np.bool_]]]) -> None:
@@ -75,13 +76,13 @@ class PieceWindow:
         landmarks, and the pieces that are due are committed (before their first frames
         leave; ``commit``: those whose tracks ended too)."""
         seen = {c: ids for c, (ids, _, _) in rows.items()}
-        self.landmarks.forget(seen, t)
-        tracks = self.tracks
-        if self.promote:
-            promoted = tracks.live.take_continuing(seen, first_kept, self.landmarks.room())
+        tracks, landmarks = self.tracks, self.landmarks
+        if landmarks is not None:
+            landmarks.forget(seen, t)
+            promoted = tracks.live.take_continuing(seen, first_kept, landmarks.room())
             for cam, (obs, ids) in promoted.items():
-                tracks.count(*self.landmarks.promote(add, cam, obs, ids, tracks.robust_norms,
-                                                     t, tracks.live.gates(obs)))
+                tracks.count(*landmarks.promote(add, cam, obs, ids, tracks.robust_norms, t,
+                                                tracks.live.gates(obs)))
         if leaving:  # the window is full: its length in frames, for the staggered cuts
             self._full_window = f - first_kept
         due = tracks.live.take_due(f, seen, first_kept, commit, window=self._full_window)
@@ -90,13 +91,16 @@ class PieceWindow:
 
     def retire(self, leaving: list[int], first_kept: int) -> None:
         """Frames ``leaving`` left the window (``first_kept`` is the oldest left)."""
-        self.landmarks.retire(leaving)
+        if self.landmarks is not None:
+            self.landmarks.retire(leaving)
         for g in leaving:
             self.tracks.bases.pop(g, None)
         self.tracks.live.drop_frames_before(first_kept)
 
     def associate(self, rows: Rows) -> Association:
         """The landmark each of the new frame's rows observes (-1: none)."""
+        if self.landmarks is None:
+            return {cam: np.full(len(ids), -1, dtype=np.int64) for cam, (ids, _, _) in rows.items()}
         return {cam: self.landmarks.of(cam, ids) for cam, (ids, _, _) in rows.items()}
 
     def observe(self, add: Additions, f: int, t: float, rows: Rows, marks: Association,
@@ -114,7 +118,7 @@ class PieceWindow:
             if live.any():
                 self.tracks.live.add(f, cam, ids[live], xy[live], whiten[live],
                                      None if pair is None else pair[live], verdicts[cam][live])
-            if lm.any():
+            if lm.any() and self.landmarks is not None:
                 w = gate_weights(verdicts[cam][lm])
                 w = w if pair is None else pair[lm] * w
                 left_out = self.landmarks.observe(add, f, t, cam, marks[cam][lm], xy[lm], w)
@@ -139,14 +143,16 @@ class PieceWindow:
         """After an update: the live factors' points start the next frame's guess; the
         landmarks' points are read back."""
         self.tracks.keep_points(self._live)
-        self.landmarks.update_points(estimate)
+        if self.landmarks is not None:
+            self.landmarks.update_points(estimate)
 
     def reset(self, keep: int | None = None, base: FloatArray | None = None) -> None:
         """Forget every track, piece and landmark (a new window); the rows of frame ``keep``
         (the one it holds, on ``base``) start new pieces."""
         self.tracks.reset(keep=keep)
         self.tracks.bases = {} if keep is None else {keep: base}
-        self.landmarks.reset()
+        if self.landmarks is not None:
+            self.landmarks.reset()
         self._live = []
 
     def finish(self, add: Additions, t: float) -> None:
