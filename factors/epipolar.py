@@ -24,7 +24,8 @@ matrix derivatives of the camera poses in component p of the frame vector
 
 and ``de_k/dx = <G_k, dE>`` with ``G_k = de_k/dE``
 (:func:`~apcc_graph.frontend.geometry.sampson_gradient`). Columns of segments above the camera's
-are zero.
+are zero. Where the camera did not move (``x_a = x_b`` with a still base: the constraint's
+trivial root) every error and Jacobian is 0: a solve must start away from it.
 """
 
 from __future__ import annotations
@@ -37,6 +38,11 @@ from apcc_graph.factors.camera_chain import CameraChain
 from apcc_graph.factors.keys import frame_key
 from apcc_graph.frontend.geometry import checked_bearings, essential_matrix, sampson_gradient, skew
 from apcc_graph.model.arrays import FloatArray
+
+NO_MOTION = 1e-12
+"""Below this Sampson denominator (unit bearings; it scales with the camera's translation in
+metres) a correspondence shows no motion: its error and Jacobians are 0. At round-off
+baselines the ratio would otherwise be 0/0 noise with Jacobians near 1e16."""
 
 
 def epipolar_residual(x_a: ArrayLike, x_b: ArrayLike, chain: CameraChain, a: int, b: int,
@@ -64,7 +70,7 @@ def epipolar_residual(x_a: ArrayLike, x_b: ArrayLike, chain: CameraChain, a: int
     M = A_inv @ B[0]
     E = essential_matrix(M)
     n = len(f_a)
-    e, G = sampson_gradient(f_a, f_b, np.broadcast_to(E, (n, 3, 3)))
+    e, G = sampson_gradient(f_a, f_b, np.broadcast_to(E, (n, 3, 3)), NO_MOTION)
     if not jacobians:
         return e, None, None
     assert dA is not None and dB is not None
