@@ -13,7 +13,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import gtsam
@@ -29,6 +29,19 @@ REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "data" / "robots" / "planar_three.toml"
 SAMPLE = REPO / "data" / "sequences" / "planar_three"
 CONSOLE = Path(sys.executable).parent / "apcc-graph"
+
+
+@pytest.fixture(autouse=True)
+def _ctrl_c_as_on_a_terminal() -> Iterator[None]:
+    """Ctrl-C reaches this process and its subprocesses as from a terminal: a suite started in
+    the background by a non-interactive shell (``pytest &``) inherits SIGINT ignored, and a
+    subprocess would inherit that too and never see the signal these tests send. A handler
+    (unlike an ignore) is reset to the default when a subprocess starts."""
+    before = signal.getsignal(signal.SIGINT)
+    if before is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
 
 
 @pytest.fixture(scope="module")
