@@ -156,3 +156,16 @@ def fast_stretch_bound(frames: int, model_sigma: tuple[float, float] | str, star
         segment_sigmas(model_sigma, model), 1.0, start_sigma, 1,  # type: ignore[arg-type]
         segment_correlations("robot", model) if drifting else ())
     return np.sqrt(np.mean(bound.sigmas ** 2, axis=0))
+
+
+def bearings_between(chain, x_a: np.ndarray, x_b: np.ndarray, a: int, b: int,
+                     local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit bearings ``(N, 3)`` of points ``local`` (given in the camera's frame at frame
+    ``a``) from the camera of ``chain`` at frames a and b, with frame vectors ``x_a``,
+    ``x_b``."""
+    A = chain.poses(np.asarray(x_a, dtype=float)[None], a, False)[0][0]
+    B = chain.poses(np.asarray(x_b, dtype=float)[None], b, False)[0][0]
+    world = local @ A[:3, :3].T + A[:3, 3]
+    seen = (world - B[:3, 3]) @ B[:3, :3]
+    return (local / np.linalg.norm(local, axis=1, keepdims=True),
+            seen / np.linalg.norm(seen, axis=1, keepdims=True))

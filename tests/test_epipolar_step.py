@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import random_pose
+from helpers import bearings_between, random_pose
 
 from apcc_graph import Segment
 from apcc_graph.estimation.epipolar_step import epipolar_step
@@ -28,12 +28,9 @@ def _scene(seed: int, noise_px: float, outliers: float):
     for cam in range(3):
         chain = CameraChain(Bending.fixed(SEGMENTS[:cam + 1]), random_pose(rng, 0.3, 0.02),
                             None)
-        K = chain.poses(x_key[None], 4, False)[0][0]
-        N = chain.poses(x_now[None], 5, False)[0][0]
         local = np.column_stack([rng.uniform(-1.0, 1.0, (40, 2)), rng.uniform(1.0, 3.0, 40)])
-        world = local @ K[:3, :3].T + K[:3, 3]
-        seen = (world - N[:3, 3]) @ N[:3, :3]
-        f_k, f_n = local / local[:, 2:], seen / seen[:, 2:]
+        f_k, f_n = bearings_between(chain, x_key, x_now, 4, 5, local)
+        f_k, f_n = f_k / f_k[:, 2:], f_n / f_n[:, 2:]  # on the image plane, for pixel noise
         f_k[:, :2] += rng.normal(0.0, noise_px / FOCAL, (40, 2))
         f_n[:, :2] += rng.normal(0.0, noise_px / FOCAL, (40, 2))
         wrong = rng.random(40) < outliers
