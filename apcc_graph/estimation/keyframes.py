@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -123,7 +124,5 @@ def keyframe_reasons(rule: KeyframeRule, elapsed: float,
 
 
 def rotation_angle(R: FloatArray) -> float:
-    """``|Log(R)|`` of a rotation matrix (radians), accurate near 0 as well (from the sine in
-    the skew part and the cosine in the trace)."""
-    sine = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return float(np.arctan2(sine, 0.5 * (np.trace(R) - 1.0)))
+    """``|Log(R)|`` of a rotation matrix (radians; gtsam's ``Rot3.Logmap``)."""
+    return float(np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(np.asarray(R, dtype=float)))))
