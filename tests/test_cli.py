@@ -339,6 +339,24 @@ def test_factorization_reaches_the_smoother(given: list[str], expected: str) -> 
     assert _options(args)["settings"].window.factorization == expected
 
 
+def test_keyframes_reach_the_smoother_and_only_it() -> None:
+    from apcc_graph.cli.common import UserError
+    from apcc_graph.cli.estimate import _options
+    from apcc_graph.cli.main import build_parser
+    from apcc_graph.estimation.keyframes import KeyframeRule
+
+    parse = build_parser().parse_args
+    args = parse(["estimate", "data/sequences/planar_three", "--method", "smoother",
+                  "--keyframes", "--out", "x"])
+    assert _options(args)["settings"].keyframes == KeyframeRule()
+    args = parse(["estimate", "data/sequences/planar_three", "--method", "smoother", "--out",
+                  "x"])
+    assert _options(args)["settings"].keyframes is None
+    args = parse(["estimate", "data/sequences/planar_three", "--keyframes", "--out", "x"])
+    with pytest.raises(UserError, match="--keyframes applies to --method smoother only"):
+        _options(args)
+
+
 def test_a_list_option_may_start_with_a_negative_value(
         capsys: pytest.CaptureFixture[str]) -> None:
     """``--theta0-deg -15,3,4`` is the option's value, as ``--theta0-deg=-15,3,4`` is; a

@@ -51,6 +51,24 @@ def test_slow_motion_waits_and_fast_motion_does_not() -> None:
     assert keyframe_reasons(RULE, 0.05, {0: slow, 2: fast}) == ["parallax of camera 2"]
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_wrong_associations_in_both_frames_do_not_make_parallax(seed: int) -> None:
+    """35% of the rows of each frame replaced by random bearings: more than half the pairs are
+    wrong, and a still camera still has no parallax (the median would measure the jumps)."""
+    rng = np.random.default_rng(seed)
+    points = _scene(rng)
+    now = _seen(points, np.eye(4))
+    key = points / np.linalg.norm(points, axis=1, keepdims=True)
+    for bearings in (key, now):
+        wrong = rng.random(len(points)) < 0.35
+        bearings[wrong] = _seen(_scene(rng, int(wrong.sum())), np.eye(4))
+    change = view_change(key, now, np.eye(3), len(points))
+    angles = np.arccos(np.clip(np.sum(key * now, axis=1), -1.0, 1.0))
+    assert np.median(angles) > RULE.parallax  # what the median would have said
+    assert change.parallax < 1e-9
+    assert keyframe_reasons(RULE, 0.05, {0: change}) == []
+
+
 def test_pure_rotation_has_no_parallax_but_makes_a_keyframe() -> None:
     change = _change(np.random.default_rng(2), np.array([0.03, -0.05, 0.01]), np.zeros(3))
     assert change.parallax < 1e-9  # the rotation explains every bearing

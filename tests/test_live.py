@@ -80,6 +80,28 @@ def test_without_real_time_every_frame_is_estimated() -> None:
     assert np.all(np.isfinite([e.thetas for e in got]))
 
 
+def test_live_with_keyframes_estimates_every_frame_once_and_says_which_wait() -> None:
+    """The smoother solving at keyframes only: every frame still gets an estimate at once (a
+    frame between keyframes says it waits: status "pending") and one final estimate, in
+    order; fewer iSAM2 updates than frames (after the warm-up of one lag, all keyframes)."""
+    from apcc_graph.estimation.keyframes import KeyframeRule
+    from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
+
+
+    frames = 24
+    live = LiveEstimator(load_robot(ROBOT), np.zeros(3), realtime=False,
+                         settings=SmootherOptions(window=WindowOptions(lag=0.3),
+                                                  keyframes=KeyframeRule()))
+    got = list(live.run(_frames(frames)))
+    assert [e.index for e in got] == list(range(frames)) and live.dropped == 0
+    final = [fr for e in got for fr in e.final] + list(live.finish())
+    assert [fr.frame for fr in final] == list(range(frames))
+    keys = live.smoother._keys
+    assert keys.frames == frames and 0 < keys.keyframes < frames
+    assert sum(e.pending for e in got) == frames - keys.keyframes
+    assert not got[0].pending
+
+
 def test_frames_of_a_recording_are_read_in_order_with_every_camera() -> None:
     images = {cam: [np.full((4, 4), 10 * cam + f, np.uint8) for f in range(5)] for cam in range(2)}
 

@@ -55,9 +55,11 @@ def test_the_defaults_are_the_flat_records() -> None:
     # every field of every record is where exactly one flat field went
     places = {(r, f.name) for r, kind in RECORDS.items() for f in fields(kind)}
     assert sorted(places) == sorted(FLAT_FIELDS.values())
-    assert [f.name for f in fields(SmootherOptions)] == list(RECORDS)
+    # the records, then the keyframe rule (none: iSAM2 runs at every frame)
+    assert [f.name for f in fields(SmootherOptions)] == [*RECORDS, "keyframes"]
+    assert options.keyframes is None
     assert options == SmootherOptions(WindowOptions(), TrackOptions(), LandmarkOptions(),
-                                      FaultOptions())
+                                      FaultOptions(), None)
     with pytest.raises(FrozenInstanceError):
         options.window = WindowOptions(lag=2.0)  # type: ignore[misc]
     with pytest.raises(FrozenInstanceError):

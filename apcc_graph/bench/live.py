@@ -7,9 +7,11 @@ textured room, each tip camera's view rendered (``apcc_graph.simulation.render``
 - **offline**: ``apcc-graph track --video`` and ``estimate --method smoother`` (every frame);
 - **live**: :class:`~apcc_graph.estimation.live.LiveEstimator` at the videos' own pace (frames
   that arrive while it is busy are dropped but the newest), and every frame as fast as it can
-  (which should give the offline answer), from the true start, from the start it searches
-  in the first second itself (as ``apcc-graph live`` without ``--theta0-deg``; the start found
-  is printed beside the true one) and from the robot straight (``--theta0-deg 0,0,0``).
+  (which should give the offline answer), each with the smoother solving at every frame and at
+  keyframes only (the default :class:`~apcc_graph.estimation.keyframes.KeyframeRule`); from
+  the true start, from the start it searches in the first second itself (as ``apcc-graph
+  live`` without ``--theta0-deg``; the start found is printed beside the true one) and from
+  the robot straight (``--theta0-deg 0,0,0``).
 
 Printed: frames estimated, the rate, the latency (median and 95th percentile), frames dropped,
 and RMS per segment against the simulated truth over the frames each estimated (targets: 30
@@ -90,17 +92,21 @@ def run_offline(files: list[str], truth: FloatArray) -> LiveRun:
 
 
 def run_live(files: list[str], truth: FloatArray, realtime: bool = True,
-             start: str = "true") -> LiveRun:
+             start: str = "true", keyframes: bool = False) -> LiveRun:
     """The live loop over the videos at their pace (or every frame), from the ``"true"``
-    start, the start it searches (``"searched"``) or the robot ``"straight"``."""
+    start, the start it searches (``"searched"``) or the robot ``"straight"``; with
+    ``keyframes`` the smoother solves at keyframes only (the default rule)."""
+    from apcc_graph.estimation.keyframes import KeyframeRule
     from apcc_graph.estimation.live import LiveEstimator, recording_frames
+    from apcc_graph.estimation.smoother_options import SmootherOptions
     from apcc_graph.frontend.recordings import video_streams
     from apcc_graph.io.robot_file import load_robot
 
     robot = load_robot(ROBOT_FILE)
     streams = video_streams(files)
     theta0 = {"true": truth[0], "searched": None, "straight": np.zeros(truth.shape[1])}[start]
-    live = LiveEstimator(robot, theta0, realtime=realtime)
+    settings = SmootherOptions(keyframes=KeyframeRule()) if keyframes else None
+    live = LiveEstimator(robot, theta0, settings=settings, realtime=realtime)
     finals, latencies = {}, []
     began = time.perf_counter()
     for est in live.run(recording_frames(streams, robot.camera_segments)):
@@ -112,6 +118,7 @@ def run_live(files: list[str], truth: FloatArray, realtime: bool = True,
     errors = np.array([finals[f] for f in frames]) - truth[frames]
     name = "live, at the videos' pace" if realtime else "live, every frame (not real time)"
     name += "" if start == "true" else f", start {start}"
+    name += ", keyframes" if keyframes else ""
     return LiveRun(name, len(frames), len(truth), seconds, rms(errors),
                    (float(np.median(latencies)), float(np.percentile(latencies, 95))),
                    live.dropped, live.start_search or "")
@@ -127,7 +134,9 @@ def run_live_bench(frames: int = 600, seed: int = 1
         files, truth = render_videos(Path(tmp), frames, seed)
         rendered = time.perf_counter() - began
         rows = [run_offline(files, truth), run_live(files, truth),
+                run_live(files, truth, keyframes=True),
                 run_live(files, truth, realtime=False),
+                run_live(files, truth, realtime=False, keyframes=True),
                 run_live(files, truth, realtime=False, start="searched"),
                 run_live(files, truth, realtime=False, start="straight")]
     return rows, rendered, truth[0]

@@ -47,10 +47,11 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
         help="the back end against the Cramer-Rao bound: accuracy, drift, speed, memory",
         description="Simulate 3-segment room-scene sequences (1 px noise, 10%% and 30%% "
         "outliers, ~150 tracks per camera, 30 fps) and measure the chain, the fixed-lag "
-        "smoother and the batch beside the Cramer-Rao bound of the same sequences (and the "
-        "smoother beside the bound of a 1 s fixed lag), in one run.",
+        "smoother (solving at every frame, and at keyframes only: smoother-keyframes) and the "
+        "batch beside the Cramer-Rao bound of the same sequences (and the smoothers beside "
+        "the bound of a 1 s fixed lag), in one run.",
         parents=[frames_option(600, minimum=30, help="frames of each accuracy run")])
-    smb.add_argument("--methods", default="chain,smoother,batch",
+    smb.add_argument("--methods", default="chain,smoother,smoother-keyframes,batch",
                      help="estimators, comma-separated (default: %(default)s)")
     smb.add_argument("--outliers", default="0.1,0.3",
                      help="outlier fractions, comma-separated (default: %(default)s)")
@@ -149,7 +150,8 @@ def _add_mounts(benches: argparse._SubParsersAction) -> None:
 
 def run_smoother(args: argparse.Namespace) -> str:
     """Run the back-end benchmark; return its tables."""
-    from apcc_graph.bench.smoother import METHODS, format_smoother_benchmark, run_smoother_benchmark
+    from apcc_graph.bench.smoother import METHODS, run_smoother_benchmark
+    from apcc_graph.bench.smoother_tables import format_smoother_benchmark
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]

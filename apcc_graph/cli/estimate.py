@@ -50,6 +50,11 @@ def _add_smoother_arguments(est: argparse.ArgumentParser) -> None:
                      "is slower but does not square the window's condition number, and gtsam "
                      "then never failed on the real robot's motion; docs/estimation.md, the "
                      "fixed-lag smoother)")
+    est.add_argument("--keyframes", action="store_true",
+                     help="smoother only: run iSAM2 at keyframes only (a frame that turns, "
+                     "shows parallax or comes 0.1 s after the last keyframe); every frame still "
+                     "enters the window with all its observations, the others wait for the "
+                     "next keyframe (docs/estimation.md, keyframes)")
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -162,6 +167,7 @@ def _spatial_options(args: argparse.Namespace) -> dict:
 def _smoother_settings(args: argparse.Namespace) -> SmootherOptions | None:
     """The smoother's settings from the command line, checked (``None`` for another method,
     which must not have been given any)."""
+    from apcc_graph.estimation.keyframes import KeyframeRule
     from apcc_graph.estimation.smoother_options import (
         FaultOptions,
         SmootherOptions,
@@ -176,13 +182,16 @@ def _smoother_settings(args: argparse.Namespace) -> SmootherOptions | None:
             raise UserError(f"--rotation-gate {gate!r}: expected a positive angle in radians")
         return SmootherOptions(
             window=WindowOptions(lag=args.lag, factorization=args.factorization or "CHOLESKY"),
-            faults=FaultOptions(rotation_gate=gate))
+            faults=FaultOptions(rotation_gate=gate),
+            keyframes=KeyframeRule() if args.keyframes else None)
     if args.lag is not None and args.lag != DEFAULT_LAG:
         raise UserError("--lag applies to --method smoother only")
     if args.rotation_gate is not None:
         raise UserError("--rotation-gate applies to --method smoother only")
     if args.factorization is not None:
         raise UserError("--factorization applies to --method smoother only")
+    if args.keyframes:
+        raise UserError("--keyframes applies to --method smoother only")
     return None
 
 

@@ -72,6 +72,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     live.add_argument("--no-realtime", action="store_true",
                       help="process every frame as fast as possible instead of at the "
                       "recording's pace")
+    live.add_argument("--keyframes", action="store_true",
+                      help="the smoother solves at keyframes only; the frames between return "
+                      "their per-frame fit at once and are smoothed at the next keyframe "
+                      "(docs/estimation.md, keyframes)")
     live.set_defaults(run=run)
 
 
@@ -79,6 +83,7 @@ def run(args: argparse.Namespace) -> str:
     """Run the live loop; returns the summary (on Ctrl-C: writes the final rows, prints the
     summary, then raises ``KeyboardInterrupt`` for the exit code 130)."""
     from apcc_graph.cli.estimate import _theta0
+    from apcc_graph.estimation.keyframes import KeyframeRule
     from apcc_graph.estimation.live import LiveEstimator
     from apcc_graph.estimation.live_guards import deferred_interrupts
     from apcc_graph.estimation.options import GraphOptions
@@ -97,7 +102,9 @@ def run(args: argparse.Namespace) -> str:
     out = check_output_folder(args.out, args.force, inputs=inputs)
     if args.force and out.is_dir():
         _empty(out)  # rows are appended as they come: the old run's files must not stay
-    estimator = LiveEstimator(robot, theta0, SmootherOptions(window=WindowOptions(lag=args.lag)),
+    settings = SmootherOptions(window=WindowOptions(lag=args.lag),
+                               keyframes=KeyframeRule() if args.keyframes else None)
+    estimator = LiveEstimator(robot, theta0, settings,
                               realtime=not args.no_realtime,
                               graph=GraphOptions(model_sigma=chosen_model_sigma(args)))
     files = AppendedEstimate(out, robot.n_segments, lambda th: robot.forward(th))

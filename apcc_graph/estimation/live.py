@@ -60,6 +60,7 @@ from apcc_graph.estimation.blackout import stacked_tracks
 from apcc_graph.estimation.live_guards import LimitGuard, LiveWarning, RateMonitor
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
+from apcc_graph.estimation.smoother.keyframing import PENDING
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.frontend.recordings import CameraStream, match_frames
@@ -125,6 +126,8 @@ class LiveEstimate:
         latency: seconds from the frame's arrival to this estimate.
         fps: frames processed per second over the last second of wall time.
         dropped: frames dropped so far (arrived while the estimator was busy).
+        pending: the estimate is the frame's fit to the window's points, before the smoother
+            solved with it (keyframes: smoothed at the next one); else the filtered estimate.
     """
 
     index: int
@@ -136,6 +139,7 @@ class LiveEstimate:
     fps: float = 0.0
     dropped: int = 0
     clamped: NDArray[np.bool_] | None = None
+    pending: bool = False
 
 
 def recording_frames(streams: Sequence[CameraStream], cameras: Sequence[int],
@@ -365,7 +369,8 @@ class LiveEstimator:
         thetas, clamped = self.limits.clamp(index, estimate.thetas, final=False)
         return LiveEstimate(index, t, thetas, estimate.sigmas, final,
                             max(now - arrival, 0.0) if self.realtime else 0.0,
-                            float(len(self._done)), self.dropped, clamped)
+                            float(len(self._done)), self.dropped, clamped,
+                            bool(np.any(estimate.status == PENDING)))
 
     def finish(self) -> list[LiveFrame]:
         """The final estimates of the frames still in the window (the others came with the

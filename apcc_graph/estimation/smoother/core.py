@@ -19,7 +19,9 @@ stages"):
    known points (:mod:`~apcc_graph.estimation.initial_guess`);
 6. **add** its variables, rows and priors (the model; :mod:`~apcc_graph.estimation.frame_priors`);
 7. **solve**: one iSAM2 update (:class:`~apcc_graph.estimation.smoother.solver.Solver`, the only
-   owner of iSAM2; a gtsam failure restarts the window at the new frame).
+   owner of iSAM2; a gtsam failure restarts the window at the new frame). With keyframes
+   (:mod:`~apcc_graph.estimation.smoother.keyframing`) only at a keyframe: another frame keeps
+   what it added for the next keyframe's update and returns its predicted estimate.
 
 Frames leave in :meth:`FixedLagSmoother.pop_final`, where the residual test of the final frames
 runs every 2 s (:mod:`~apcc_graph.estimation.fit_monitor`).
@@ -46,6 +48,7 @@ from apcc_graph.estimation.projection_tracks import Rows, frame_rows
 from apcc_graph.estimation.rotation_gate import gate_weights, judge_frame
 from apcc_graph.estimation.rotation_start import rotation_guess
 from apcc_graph.estimation.smoother.fixed_lag import WindowSolver
+from apcc_graph.estimation.smoother.keyframing import PENDING, Keyframes, with_status
 from apcc_graph.estimation.smoother.measurement import WindowModel, read_estimate, window_model
 from apcc_graph.estimation.smoother.restarts import Recovery
 from apcc_graph.estimation.smoother.solver import Additions, Solver, new_window
@@ -126,6 +129,8 @@ class FixedLagSmoother:
         self._recovery = Recovery(robot, o, b, self.inlier_sigmas, self.gate, s.window.uncertainty,
                                   self._window, self._solver, self._model)
         self._previous: tuple[Rows, FloatArray | None] = ({}, None)  # last frame's rows, base
+        self._keys = (None if s.keyframes is None else
+                      Keyframes(s.keyframes, robot, b, warmup=s.window.lag))
         self._rng = np.random.default_rng(0)
         self._mounts = {c: robot.cameras[c].tip_T_cam[:3, :3]  # type: ignore[union-attr]
                         for c in robot.camera_segments}
@@ -211,8 +216,8 @@ class FixedLagSmoother:
         previous, window.last_time = window.last_time, t
         window.lag = self._recovery.lag(t, self.settings.window.lag)
         self._solver.set_lag(window.lag)
-        # 3. make room
-        add = Additions()
+        # 3. make room (with keyframes, into the additions of the frames since the last one)
+        add = self._take_pending()
         self._make_room(add, f, t, rows)
         # 4. associate, 5. predict
         marks = self._model.associate(rows)
@@ -227,7 +232,11 @@ class FixedLagSmoother:
         frame_priors(add.graph, f, 0.0 if previous is None else t - previous, thetas,
                      self.theta0, window, self.bending, self.options,
                      self.settings.window.loose_sigma)
-        # 7. solve
+        # 7. solve (with keyframes: at a keyframe only)
+        if self._keys is not None and self._defer(f, t, rows, base, thetas, status):
+            self._keys.wait(add, self._solver.restarts)
+            window.count += 1
+            return still.frame_of(with_status(self._frame_estimate(f, solved=False), PENDING))
         if self._solver.update(add, self._model.replaceable(add.graph)):
             read_estimate(window, self._model, self._solver.estimate())
         else:
@@ -235,6 +244,25 @@ class FixedLagSmoother:
             self._recovery.restart(f, t, thetas)
         window.count += 1
         return still.frame_of(self._frame_estimate(f))
+
+    def _take_pending(self) -> Additions:
+        """What the frames since the last keyframe added (with keyframes), for this update."""
+        return Additions() if self._keys is None else self._keys.take(self._solver.restarts)
+
+    def _defer(self, f: int, t: float, rows: Rows, base: FloatArray | None, x: FloatArray,
+                status: NDArray[np.str_]) -> bool:
+        """With keyframes: whether graph frame ``f`` waits for the next keyframe's update
+        (:mod:`~apcc_graph.estimation.smoother.keyframing`); a keyframe is recorded."""
+        keys = self._keys
+        assert keys is not None
+        measured = f > 0 and bool(np.all(status == "ok"))
+        if (f > 0 and self._recovery.reacquiring is None
+                and not keys.decide(t, rows, x, base, measured, self._window.latest)):
+            return True
+        if f == 0:
+            keys.decide(t, rows, x, base, False, self._window.latest)
+        keys.keyframe(f, t, rows, base)
+        return False
 
     def _faults(self, f: int, t: float, rows: Rows, observations: FrameObservations,
                 frame: int, timestamp: float) -> tuple[Rows, Mapping[int, NDArray[np.int8]]]:
@@ -261,7 +289,8 @@ class FixedLagSmoother:
         leaving = sorted(window.leaving(t))
         first_kept = max(leaving) + 1 if leaving else min(window.stamps, default=f)
         self._model.make_room(add, f, t, rows, leaving, first_kept,
-                              f % self.settings.tracks.commit_every == 0)
+                              f % self.settings.tracks.commit_every == 0
+                              if self._keys is None else self._keys.commit_now())
         first = self._first if 0 in leaving else None
         if first is not None and window.status[0][0] == "initial":  # replaced next
             self._first = None
@@ -326,10 +355,13 @@ class FixedLagSmoother:
         """Frame g's marginal covariance blocks, flattened (see the window)."""
         return self._recovery.sigmas(g)
 
-    def _frame_estimate(self, f: int) -> SmootherFrame:
+    def _frame_estimate(self, f: int, solved: bool = True) -> SmootherFrame:
+        """Frame ``f``'s current estimate (``solved``: with its marginal sigmas, which a
+        frame iSAM2 has not seen yet has not: NaN)."""
         window = self._window
+        sigmas = self._sigmas(f) if solved else np.full(window.n_segments, np.nan)
         return window.present(SmootherFrame(f, window.times[f], window.thetas[f].copy(),
-                                            self._sigmas(f), window.status[f].copy()))
+                                            sigmas, window.status[f].copy()))
 
     # ------------------------------------------------------------------------- output
     def pop_final(self) -> list[SmootherFrame]:
@@ -348,7 +380,7 @@ class FixedLagSmoother:
         replayed = self._recovery.settle()
         if replayed is not None:
             self._previous = replayed
-        add = Additions()
+        add = self._take_pending()
         self._model.finish(add, self._window.last_time or 0.0)
         if self._window.stamps and (add.graph.size() or self._model.final_steps):
             if (self._solver.update(add)

@@ -76,6 +76,7 @@ class Solver:
         window: gtsam's smoother holding the window's variables (tests replace it to
             provoke failures).
         recoveries: gtsam failures caught so far.
+        restarts: new windows started so far (:meth:`restart`).
         last_error: the last of them.
     """
 
@@ -83,6 +84,7 @@ class Solver:
         self._new_window = new_window
         self.window = new_window()
         self.recoveries = 0
+        self.restarts = 0  # new windows so far
         self.last_error: BaseException | None = None
         self._replaceable: list[int] = []  # gtsam's indices of the live factors held
 
@@ -111,6 +113,7 @@ class Solver:
         """A new, empty window given ``add`` (its prior and the frames it keeps); ``False``
         when gtsam fails on that too (counted)."""
         self.window = self._new_window()
+        self.restarts += 1
         self._replaceable = []
         return self.update(add, replaceable)
 
