@@ -86,6 +86,27 @@ def test_bench_smoother_prints_the_lag_bound_for_the_smoother(capsys) -> None:
     assert main(["bench", "smoother", "--outliers", "0.1,1.5"]) == 1
 
 
+def test_bench_smoother_prints_keyframes_beside_every_frame(capsys) -> None:
+    """The keyframe row's ratios are the per-seed rows' RMS over each other (rounded)."""
+    assert main(["bench", "smoother", "--frames", "60", "--seeds", "2", "--outliers", "0.1",
+                 "--methods", "smoother,smoother-keyframes", "--long-frames", "0",
+                 "--memory-frames", "0"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rms = {}
+    for ln in lines:
+        m = re.match(r"\s+10% outliers\s+2\s+(smoother|smoother-keyframes)\s+(.*)", ln)
+        if m:
+            rms[m.group(1)] = np.array([float(v) for v in m.group(2).split()[:3]])
+    assert set(rms) == {"smoother", "smoother-keyframes"}
+    at = next(i for i, ln in enumerate(lines) if ln.startswith("smoother-keyframes / smoother"))
+    cells = [float(v) for v in lines[at + 1].split()[2:]]
+    median, worst, seconds = cells[:3], cells[3:6], cells[6]
+    assert median == worst  # one seed
+    ratio = rms["smoother-keyframes"] / rms["smoother"]
+    assert np.allclose(median, ratio, atol=0.01 + 0.001 * ratio / rms["smoother"]), (median, ratio)
+    assert 0.0 < seconds < 1.5
+
+
 def test_bench_selfcal_small_run(capsys) -> None:
     assert main(["bench", "selfcal", "--frames", "40", "--seeds", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
