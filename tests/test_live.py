@@ -166,6 +166,32 @@ def test_live_interrupted_mid_run_leaves_complete_readable_outputs(
     assert "--video names 1 files for 3 cameras" in capsys.readouterr().err
 
 
+def test_live_keyframes_from_the_command_line_write_every_frame(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``apcc-graph live --keyframes``: the smoother gets the keyframe rule, and theta.csv holds
+    every frame once, in order."""
+    from apcc_graph.estimation import live as live_module
+    from apcc_graph.estimation.keyframes import KeyframeRule
+
+    made = []
+    init = LiveEstimator.__init__
+
+    def recorded(self: LiveEstimator, *args: object, **kwargs: object) -> None:
+        init(self, *args, **kwargs)  # type: ignore[arg-type]
+        made.append(self.settings)
+
+    monkeypatch.setattr(LiveEstimator, "__init__", recorded)
+    monkeypatch.setattr(live_module, "recording_frames", lambda *a, **k: _frames(20))
+    monkeypatch.setattr("apcc_graph.frontend.recordings.video_streams", lambda files: [])
+    out = tmp_path / "live"
+    assert main(["live", "--video", "a.mp4,b.mp4,c.mp4", "--robot", str(ROBOT), "--out",
+                 str(out), "--no-realtime", "--theta0-deg", "0,0,0", "--lag", "0.3",
+                 "--keyframes"]) == 0
+    assert made and made[0].keyframes == KeyframeRule() and made[0].window.lag == 0.3
+    rows = (out / "theta.csv").read_text().splitlines()[1:]
+    assert [int(r.split(",")[0]) for r in rows] == list(range(20))
+
+
 def test_a_machine_that_does_not_keep_up_is_warned_about_by_rate_and_early() -> None:
     """Smoothing takes 0.1 s while frames arrive at 30 per second: once the first second of
     the recording has passed (not after 30 smoothed frames), one LiveWarning gives both rates;
