@@ -1,6 +1,7 @@
 """What a keyframe rate costs the smoother in accuracy, and what it saves in time:
-``python tests/keyframe_cost.py [frames] [seeds] [rates] [outliers]``, e.g.
-``python tests/keyframe_cost.py 300 0,1 1,3,5,10,rule 0.1``.
+``python tests/keyframe_cost.py [frames] [seeds] [rates] [outliers] [model_sigma]``, e.g.
+``python tests/keyframe_cost.py 300 0,1 1,3,5,10,rule 0.1`` (``model_sigma``: ``MM,DEG``, the
+smoother with model error as noise of that tip position and rotation; default the exact model).
 
 On the smoother benchmark's room scene (the shipped three-segment robot, 1 px, 10% outliers
 unless given,
@@ -23,6 +24,7 @@ import numpy as np
 
 from apcc_graph.bench.smoother import FPS, ROBOT_FILE, room_simulation
 from apcc_graph.estimation.keyframes import KeyframeRule
+from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
 from apcc_graph.io.robot_file import load_robot
@@ -39,13 +41,14 @@ def rule_of(rate: str) -> KeyframeRule | None:
                         survival=0.0)
 
 
-def run(robot, seq, rate: str) -> tuple[int, np.ndarray, np.ndarray, float, dict[str, int]]:
+def run(robot, seq, rate: str, options: GraphOptions | None = None
+        ) -> tuple[int, np.ndarray, np.ndarray, float, dict[str, int]]:
     """Keyframes, final RMS, at-once RMS (deg), seconds of one stream and why its keyframes
     were keyframes."""
     truth = seq.thetas
     settings = SmootherOptions(window=WindowOptions(lag=1.0, uncertainty=False),
                                keyframes=rule_of(rate))
-    smoother = FixedLagSmoother(robot, theta0=truth[0], settings=settings)
+    smoother = FixedLagSmoother(robot, theta0=truth[0], settings=settings, options=options)
     start = time.perf_counter()
     now = np.array([smoother.update(seq.frame(f)).thetas for f in range(seq.n_frames)])
     final = np.array([e.thetas for e in smoother.finish()])
@@ -65,6 +68,10 @@ def main() -> None:
     seeds = [int(s) for s in (sys.argv[2] if len(sys.argv) > 2 else "0").split(",")]
     rates = (sys.argv[3] if len(sys.argv) > 3 else "1,3,5,10,rule").split(",")
     outliers = float(sys.argv[4]) if len(sys.argv) > 4 else 0.1
+    options = None
+    if len(sys.argv) > 5:
+        mm, deg = (float(v) for v in sys.argv[5].split(","))
+        options = GraphOptions(model_sigma=(mm * 1e-3, math.radians(deg)))
     if "1" not in rates:
         rates = ["1", *rates]
     robot = load_robot(ROBOT_FILE)
@@ -73,7 +80,7 @@ def main() -> None:
         seq = room_simulation(robot, frames, outliers, seed).sequence
         base = None
         for rate in sorted(rates, key=lambda r: (r != "1", r)):
-            keys, final, now, seconds, reasons = run(robot, seq, rate)
+            keys, final, now, seconds, reasons = run(robot, seq, rate, options)
             base = base or (final, seconds)
             print(f"seed {seed} rate {rate:>4}: {keys:4d} keyframes; final "
                   f"{' / '.join(f'{v:.3f}' for v in final)} deg "
