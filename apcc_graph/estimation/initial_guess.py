@@ -206,3 +206,23 @@ def row_inliers(thetas: FloatArray, robot: Robot, bending: Bending,
         return ()
     *_, inliers = _normal_equations(thetas, robot, bending, world_T_base, rows, None, threshold)
     return tuple(inliers)
+
+
+def fit_blocks(thetas: FloatArray, robot: Robot, bending: Bending,
+               world_T_base: FloatArray | None, rows: list[FrameRows],
+               threshold: float) -> FloatArray:
+    """The flattened per-segment covariance blocks ``(S w^2,)`` of the frame vector
+    ``thetas`` fitted to fixed points (the inverse of the inliers' Gauss-Newton information;
+    the points' own uncertainty left out); ``inf`` where no row constrains a component."""
+    P = len(thetas)
+    H = (np.zeros((P, P)) if not rows else
+         _normal_equations(thetas, robot, bending, world_T_base, rows, None, threshold)[0])
+    free = np.diag(H) > 0.0
+    C = np.zeros((P, P))
+    if free.any():
+        try:
+            C[np.ix_(free, free)] = np.linalg.inv(H[np.ix_(free, free)])
+        except np.linalg.LinAlgError:
+            free[:] = False
+    C[np.flatnonzero(~free), np.flatnonzero(~free)] = np.inf
+    return bending.blocks(C).reshape(-1)

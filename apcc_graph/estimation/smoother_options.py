@@ -29,6 +29,8 @@ import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
+from apcc_graph.estimation.keyframes import KeyframeRule
+
 
 def _positive(owner: object, name: str, value: float, unit: str) -> None:
     if not (math.isfinite(value) and value > 0.0):
@@ -264,6 +266,9 @@ class SmootherOptions:
         tracks: the live tracks (:class:`TrackOptions`).
         landmarks: the tracks that outlive the window (:class:`LandmarkOptions`).
         faults: still frames, the outlier gate, the residual test (:class:`FaultOptions`).
+        keyframes: when a frame enters the window
+            (:class:`~apcc_graph.estimation.keyframes.KeyframeRule`); ``None``: every frame
+            does (:mod:`~apcc_graph.estimation.smoother.keyframing`).
 
     A record not given (or ``None``) has its defaults. The flat names of earlier releases
     (``SmootherOptions(lag=0.5)``) are refused: the ``TypeError`` names the record each went
@@ -278,10 +283,11 @@ class SmootherOptions:
     tracks: TrackOptions = field(default_factory=TrackOptions)
     landmarks: LandmarkOptions = field(default_factory=LandmarkOptions)
     faults: FaultOptions = field(default_factory=FaultOptions)
+    keyframes: KeyframeRule | None = None
 
     def __init__(self, window: WindowOptions | None = None, tracks: TrackOptions | None = None,
                  landmarks: LandmarkOptions | None = None, faults: FaultOptions | None = None,
-                 **flat: object) -> None:
+                 keyframes: KeyframeRule | None = None, **flat: object) -> None:
         unknown = [name for name in flat if name not in FLAT_FIELDS]
         if unknown:
             raise _unknown(unknown)
@@ -301,6 +307,10 @@ class SmootherOptions:
                 raise TypeError(f"SmootherOptions.{name}: expected {kind.__name__}, got "
                                 f"{type(value).__name__}")
             object.__setattr__(self, name, value)
+        if keyframes is not None and not isinstance(keyframes, KeyframeRule):
+            raise TypeError(f"SmootherOptions.keyframes: expected KeyframeRule or None, got "
+                            f"{type(keyframes).__name__}")
+        object.__setattr__(self, "keyframes", keyframes)
 
     @classmethod
     def of(cls, **flat: object) -> SmootherOptions:

@@ -74,6 +74,11 @@ class StillFrames:
         self._members[slot] = [(frame, t)]
         return False
 
+    def join(self, slot: int) -> None:
+        """The frame just received, which :meth:`hold` made slot ``slot``, joins the slot
+        before instead (a keyframe smoother's between frame: it keeps its own estimate)."""
+        self._members.setdefault(slot - 1, []).append(self._members.pop(slot)[0])
+
     def _still(self, rows: Rows, base: FloatArray | None) -> bool:
         if self._anchor is None:
             return False

@@ -40,12 +40,15 @@ from apcc_graph.estimation.blackout import Reacquisition
 from apcc_graph.estimation.fit_monitor import BlockFit, FitMonitor
 from apcc_graph.estimation.frame_priors import frame_priors
 from apcc_graph.estimation.front_end import front_end_guess
-from apcc_graph.estimation.initial_guess import predict, refine, row_inliers
+from apcc_graph.estimation.graph import camera_chain
+from apcc_graph.estimation.initial_guess import fit_blocks, predict, refine, row_inliers
+from apcc_graph.estimation.keyframe_fit import KeyframePoints
 from apcc_graph.estimation.options import GraphOptions, Robustness
 from apcc_graph.estimation.projection_tracks import Rows, frame_rows
 from apcc_graph.estimation.rotation_gate import gate_weights, judge_frame
 from apcc_graph.estimation.rotation_start import rotation_guess
 from apcc_graph.estimation.smoother.fixed_lag import WindowSolver
+from apcc_graph.estimation.smoother.keyframing import BetweenFrame, Keyframes
 from apcc_graph.estimation.smoother.measurement import WindowModel, read_estimate, window_model
 from apcc_graph.estimation.smoother.restarts import Recovery
 from apcc_graph.estimation.smoother.solver import Additions, Solver, new_window
@@ -126,6 +129,9 @@ class FixedLagSmoother:
         self._recovery = Recovery(robot, o, b, self.inlier_sigmas, self.gate, s.window.uncertainty,
                                   self._window, self._solver, self._model)
         self._previous: tuple[Rows, FloatArray | None] = ({}, None)  # last frame's rows, base
+        self._keys = None if s.keyframes is None else Keyframes(
+            s.keyframes, robot, b, {c: camera_chain(robot, c, b) for c in robot.camera_segments})
+        self._hint: FloatArray | None = None  # the frame step's vector of a keyframe
         self._rng = np.random.default_rng(0)
         self._mounts = {c: robot.cameras[c].tip_T_cam[:3, :3]  # type: ignore[union-attr]
                         for c in robot.camera_segments}
@@ -205,6 +211,9 @@ class FixedLagSmoother:
         if still.hold(rows, base, f, t, window.inside(f - 1)):
             return still.held(self._frame_estimate(f - 1))
         t -= still.paused  # the graph's clock stops while the robot stands still
+        between = self._between(f, t, rows, base, observations.timestamp)
+        if between is not None:  # kept out of the window: the frame step's estimate
+            return between
         # 2. faults
         rows, verdicts = self._faults(f, t, rows, observations, still.count - 1,
                                       still.last_time or 0.0)
@@ -234,7 +243,58 @@ class FixedLagSmoother:
             warn_restart(f, t, self._solver.last_error)
             self._recovery.restart(f, t, thetas)
         window.count += 1
+        if self._keys is not None:
+            self._keys.keyframe(f, t, rows, window.thetas[f], base)
+            self._keys.returned(t, window.thetas[f])
         return still.frame_of(self._frame_estimate(f))
+
+    def _between(self, f: int, t: float, rows: Rows, base: FloatArray | None,
+                 timestamp: float) -> SmootherFrame | None:
+        """With keyframes: the frame step of graph frame ``f``'s candidate, and, when the rule
+        does not make it a keyframe, its estimate as a between frame
+        (:mod:`~apcc_graph.estimation.smoother.keyframing`); ``None``: it enters the window."""
+        keys, window = self._keys, self._window
+        self._hint = None
+        if keys is None or f == 0 or not window.inside(f - 1) or self._recovery.reacquiring:
+            return None
+        x, measured = self._frame_step(t, rows, base)
+        if keys.decide(t, rows, x, base, measured):
+            self._hint = x
+            return None
+        self._still.join(f)
+        S = self.robot.n_segments
+        frame = BetweenFrame(self._still.count - 1, timestamp, rows, base, x,
+                             np.full(self.bending.width**2 * S, np.nan))
+        keys.hold(f - 1, frame)
+        keys.returned(t, x)
+        return keys.estimate(frame, window.present, S)
+
+    def _frame_step(self, t: float, rows: Rows, base: FloatArray | None,
+                    start: FloatArray | None = None) -> tuple[FloatArray, bool]:
+        """A frame's vector fitted to its rows of the points the window knows, from ``start``
+        (default the constant-velocity prediction); and whether it was fitted."""
+        assert self._keys is not None
+        if start is None:
+            start = self._keys.prediction(t)
+            if start is None:
+                start = self._window.latest(self._window.count - 1)
+        known, _ = self._model.known_rows(rows, self._model.associate(rows))
+        guess = refine(start, self.robot, self.bending, base, known, self.inlier_sigmas)
+        return guess.thetas, guess.refined
+
+    def _fit_between(self, frame: BetweenFrame, slot: int, points: KeyframePoints
+                     ) -> tuple[FloatArray, FloatArray]:
+        """A between frame's final fit, to the points of the keyframes around it as its
+        keyframe (``slot``) leaves; its covariance blocks: the fit's (points held) plus the
+        keyframe's."""
+        known = points.rows(frame.rows)
+        x = refine(frame.x, self.robot, self.bending, frame.base, known,
+                   self.inlier_sigmas).thetas
+        blocks = self._sigmas(slot)
+        if np.all(np.isnan(blocks)):
+            return x, blocks
+        return x, blocks + fit_blocks(x, self.robot, self.bending, frame.base, known,
+                                      self.inlier_sigmas)
 
     def _faults(self, f: int, t: float, rows: Rows, observations: FrameObservations,
                 frame: int, timestamp: float) -> tuple[Rows, Mapping[int, NDArray[np.int8]]]:
@@ -262,6 +322,8 @@ class FixedLagSmoother:
         first_kept = max(leaving) + 1 if leaving else min(window.stamps, default=f)
         self._model.make_room(add, f, t, rows, leaving, first_kept,
                               f % self.settings.tracks.commit_every == 0)
+        if self._keys is not None:  # before the pieces their points come from are committed
+            self._keys.finalise(leaving, self._fit_between, window.latest)
         first = self._first if 0 in leaving else None
         if first is not None and window.status[0][0] == "initial":  # replaced next
             self._first = None
@@ -286,7 +348,8 @@ class FixedLagSmoother:
         gates = {cam: gate_weights(v) for cam, v in verdicts.items()}
         known, masks = self._model.known_rows(rows, marks, gates)
         previous = self._window.latest(f - 1)
-        prediction = predict(previous, self._older(f), bending)
+        prediction = (predict(previous, self._older(f), bending) if self._hint is None
+                      else self._hint)
         counts: dict[int, int] = {}
         for cam, mask in masks:
             counts[cam] = counts.get(cam, 0) + int(mask.sum())
@@ -335,7 +398,11 @@ class FixedLagSmoother:
     def pop_final(self) -> list[SmootherFrame]:
         """The frames that left the window since the last call (with the still frames each
         stands for), in order, and forget them."""
-        frames = self._still.expand(self._window.pop_final())
+        finals = self._window.pop_final()
+        frames = self._still.expand(finals)
+        if self._keys is not None:
+            frames = self._keys.expand(frames, [e.frame for e in finals], self._window.present,
+                                       self.robot.n_segments)
         if self._monitor is not None:
             self._monitor.final(frames)
         return frames
@@ -348,13 +415,20 @@ class FixedLagSmoother:
         replayed = self._recovery.settle()
         if replayed is not None:
             self._previous = replayed
+        if self._keys is not None:
+            self._keys.finalise(sorted(self._window.stamps), self._fit_between,
+                                self._window.latest, final=False)
         add = Additions()
         self._model.finish(add, self._window.last_time or 0.0)
         if self._window.stamps and (add.graph.size() or self._model.final_steps):
             if (self._solver.update(add)
                     and self._solver.relinearise(self._model.final_steps)):
                 read_estimate(self._window, self._model, self._solver.estimate())
-        frames = self._still.expand(self._window.frames(self._sigmas), done=False)
+        estimates = self._window.frames(self._sigmas)
+        frames = self._still.expand(estimates, done=False)
+        if self._keys is not None:
+            frames = self._keys.expand(frames, [e.frame for e in estimates],
+                                       self._window.present, self.robot.n_segments, done=False)
         if self._monitor is not None:
             self._monitor.final(frames)
             self._monitor.flush()
