@@ -73,17 +73,21 @@ class Keyframes:
         self.commit_due = True  # the ended tracks' pieces are committed at the next frame
         self._pending: Additions | None = None  # what the frames since the keyframe added
         self._restarts = 0  # the solver's restarts seen
+        self._key_rotations: tuple[bytes, dict[int, FloatArray]] = (b"", {})  # slot, key_x
 
     def changes(self, rows: Rows, x: FloatArray, base: FloatArray | None,
                 key_x: FloatArray) -> dict[int, ViewChange]:
         """Each camera's change since the last keyframe, whose vector is now ``key_x``."""
         assert self._key is not None
-        _, _, key_rows, key_base = self._key
+        slot, _, key_rows, key_base = self._key
+        stamp = slot.to_bytes(8, "little", signed=True) + np.asarray(key_x, float).tobytes()
+        if self._key_rotations[0] != stamp:  # the keyframe's vector moves only at solves
+            self._key_rotations = (stamp, {c: _rotation(chain, key_x, key_base)
+                                           for c, chain in self._chains.items()})
         out = {}
         for cam, (ids, xy, _) in rows.items():
-            chain = self._chains[cam]
-            R_key = _rotation(chain, key_x, key_base)
-            R_now = _rotation(chain, x, base)
+            R_key = self._key_rotations[1][cam]
+            R_now = _rotation(self._chains[cam], x, base)
             old = key_rows.get(cam)
             old_ids = np.empty(0, dtype=np.int64) if old is None else old[0]
             _, i_key, i_now = np.intersect1d(old_ids, ids, assume_unique=True,
