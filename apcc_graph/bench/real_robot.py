@@ -41,6 +41,7 @@ from apcc_graph.bench.real_honesty import Honesty, honesty, pooled_honesty
 from apcc_graph.calibration.backbone_fit import BackboneCalibration, fit_backbone
 from apcc_graph.calibration.model_exact import model_exact_poses
 from apcc_graph.estimation.batch import batch_estimate
+from apcc_graph.estimation.keyframes import KeyframeRule
 from apcc_graph.estimation.methods import estimate
 from apcc_graph.estimation.model_fit import ModelFitWarning
 from apcc_graph.estimation.model_noise import (
@@ -72,9 +73,11 @@ from apcc_graph.simulation.simulator import Simulation
 
 RECORDINGS = ("slow_free_space", "impulse_2")
 PEERS = {"smoother-qr": SmootherOptions(window=WindowOptions(factorization="QR")),
-         "smoother-gate": SmootherOptions(faults=FaultOptions(rotation_gate=0.02))}
+         "smoother-gate": SmootherOptions(faults=FaultOptions(rotation_gate=0.02)),
+         "smoother-keyframes": SmootherOptions(keyframes=KeyframeRule())}
 """Smoother variants the bench can run beside the default: ``smoother-qr`` factors its window
-by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad)."""
+by QR, ``smoother-gate`` adds the model-free outlier gate (0.02 rad), ``smoother-keyframes``
+solves at keyframes only (the default rule)."""
 EXACT = ("batch-exact", "smoother-exact")
 """The batch and the smoother with the exact model forced (``--exact-model``)."""
 INDEPENDENT = ("batch-independent", "smoother-independent")

@@ -49,7 +49,7 @@ def add_parsers(benches: argparse._SubParsersAction) -> None:
                     "started from the chain instead of the cameras' rotations), noise and "
                     "smoother-noise (with --model-sigma), smoother-qr (the smoother factoring "
                     "its window by QR), smoother-gate (the smoother with the model-free "
-                    "outlier gate)")
+                    "outlier gate), smoother-keyframes (the smoother solving at keyframes)")
     rb.add_argument("--noise-px", type=non_negative, default=1.0, help="pixel noise (default 1)")
     rb.add_argument("--outliers", type=float, default=0.1, help="outlier fraction (default 0.1)")
     rb.add_argument("--start-sigma-deg", type=positive, default=2.0,
