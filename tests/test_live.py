@@ -44,14 +44,16 @@ class _Clock:
 
 
 def _busy_estimator(seconds: float) -> LiveEstimator:
-    """A live estimator on a controlled clock whose every smoothing takes ``seconds``."""
+    """A live estimator on a controlled clock whose every smoothing takes ``seconds``
+    (tracking in the loop's thread: what arrived is known exactly when)."""
     clock = _Clock()
-    live = LiveEstimator(load_robot(ROBOT), np.zeros(3), clock=clock, sleep=clock.sleep)
+    live = LiveEstimator(load_robot(ROBOT), np.zeros(3), clock=clock, sleep=clock.sleep,
+                         pipelined=False)
     process = live._process
 
-    def busy(*args: object) -> object:
+    def busy(*args: object, **kwargs: object) -> object:
         clock.now += seconds
-        return process(*args)  # type: ignore[arg-type]
+        return process(*args, **kwargs)  # type: ignore[arg-type]
 
     live._process = busy  # type: ignore[method-assign]
     return live

@@ -132,7 +132,7 @@ def test_stopped_during_the_start_search_the_kept_frames_are_searched_and_given(
                 stop.set()  # while frame 19 is tracked: the loop stops before frame 20
             yield f, float(sim.sequence.timestamps[f]), {-1: sim.sequence.frame(f)}
 
-    live = LiveEstimator(robot, realtime=False)
+    live = LiveEstimator(robot, realtime=False, pipelined=False)  # frame 20 not read ahead
     monkeypatch.setattr(live, "_track", lambda images: dict(images[-1].tracks))
     got = list(live.run(frames(), stop))
     assert live.interrupted

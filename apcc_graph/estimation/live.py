@@ -1,35 +1,51 @@
 """Live estimation: each frame tracked and smoothed as it arrives (``apcc-graph live``).
 
-:func:`live_estimates` is the loop, an iterator over :class:`LiveEstimate`:
+:meth:`LiveEstimator.run` is the loop, an iterator over :class:`LiveEstimate`, in two stages
+that overlap:
 
-1. a source gives frames in time order, each with one image per camera
-   (:func:`recording_frames` for a bag or video files, their cameras matched by time as
-   ``apcc-graph track`` matches them; :func:`device_frames` for cameras plugged in);
-2. each camera's :class:`~apcc_graph.frontend.tracking.KLTTracker` follows its tracks into the
-   new image, and the :class:`~apcc_graph.estimation.smoother.FixedLagSmoother` takes the frame;
-3. the frame's filtered estimate is yielded, with the frames that left the window since
-   (their final estimates), the rate and the latency.
+1. **tracking** (:class:`~apcc_graph.estimation.live_feed.TrackedFeed`, a thread of its own):
+   a source gives frames in time order, each with one image per camera
+   (:func:`~apcc_graph.estimation.live_sources.recording_frames` for a bag or video files;
+   :func:`~apcc_graph.estimation.live_sources.device_frames` for cameras plugged in); each
+   camera's :class:`~apcc_graph.frontend.tracking.KLTTracker` follows its tracks into the new
+   image (the cameras in parallel threads: OpenCV releases the interpreter), and the tracked
+   frame joins a bounded queue;
+2. **smoothing**: the :class:`~apcc_graph.estimation.smoother.FixedLagSmoother` takes the
+   queue's frames in order; each frame's estimate is yielded at once, with the frames that
+   left the window since (their final estimates), the rate and the latency. With keyframes a
+   frame between keyframes comes out with its fit to the window's points (``pending``), and
+   the keyframe's solve smooths it later; its final estimate follows in ``final``.
 
 **Real time and overload.** A recording is played at its own pace (``realtime``): a frame
-*arrives* at the wall time its timestamp says, counted from the first. Every frame is tracked
-(a few milliseconds per camera), so the tracks stay as continuous as offline, unless it has
-waited more than :data:`MAX_BEHIND` beyond the last smoothing while newer frames arrived (then
-the trackers step over it). A tracked frame after which a newer one has already arrived is not
-smoothed, unless the last smoothed frame is :data:`MAX_GAP` old: it is dropped from the
-estimate (counted), and the smoother takes a newer one: the lag stays bounded, and the
-smoother sees a lower frame rate with the same tracks (dropping frames before tracking broke
-the tracks: 60 to 120 degrees off on ``apcc-graph bench live``). A camera device delivers its
-newest image when asked (OpenCV's buffer of one), so it drops by itself. When fewer frames are
-smoothed than arrive by a margin over the first second already, a :class:`LiveWarning` says
-both rates (:class:`~apcc_graph.estimation.live_guards.RateMonitor`).
+*arrives* at the wall time its timestamp says, counted from the first. Under overload the
+loop gives up, in this order:
+
+1. *keyframe candidates* (with keyframes): while tracked frames wait, a keyframe the rule asks
+   for waits too (the smoother is told it is busy), up to the rule's ``max_deferral`` since the
+   last; the frames still get their estimates at once;
+2. *frames from smoothing*: a tracked frame after which :data:`DROP_BACKLOG` frames (one
+   without keyframes) already wait is not smoothed, unless the last smoothed frame is
+   :data:`MAX_GAP` old; it is dropped from the estimate (counted), and the tracks stay as
+   continuous as offline (dropping frames before tracking broke them: 60 to 120 degrees off on
+   ``apcc-graph bench live``); a full queue drops its oldest frame the same way;
+3. *frames from tracking*, last: a frame the tracking stage reaches more than
+   :data:`~apcc_graph.estimation.live_feed.MAX_BEHIND` after it arrived, while a newer one is
+   there, is not tracked (the trackers step over it).
+
+A camera device delivers its newest image when asked (OpenCV's buffer of one), so it drops by
+itself. When fewer frames are smoothed than arrive by a margin over the first second already,
+a :class:`LiveWarning` says both rates
+(:class:`~apcc_graph.estimation.live_guards.RateMonitor`). ``pipelined=False`` tracks in the
+loop's own thread (no overlap; the same policy, deterministic under a controlled clock).
 
 **Unknown start.** Without ``theta0`` the first second of tracked frames is kept, the start is
 searched in it as ``estimate`` searches it (:func:`~apcc_graph.estimation.start_search.
 find_start`; 2 s, then 4 s when the robot barely moved), and the smoother then starts there,
 held with the search's sigma, and takes the kept frames first (in real time one per
-:data:`MAX_GAP`). Every frame is tracked while they are kept, and a recording's replay resumes
-after the search where it paused (its frames are not dropped for the search's time). If 4 s do
-not tell the start, a :class:`LiveWarning` says so and the best guess is held loosely.
+:data:`MAX_GAP`). Every frame is tracked while they are kept; the source is paused during the
+search, and a recording's replay resumes where it paused (its frames are not dropped for the
+search's time). If 4 s do not tell the start, a :class:`LiveWarning` says so and the best guess
+is held loosely.
 
 **Joint limits.** An angle beyond its segment's ``theta_max`` is clamped and flagged, with a
 :class:`LiveWarning` (:class:`~apcc_graph.estimation.live_guards.LimitGuard`).
@@ -49,7 +65,7 @@ import threading
 import time
 import warnings
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -57,13 +73,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from apcc_graph.estimation.blackout import stacked_tracks
+from apcc_graph.estimation.live_feed import MAX_BEHIND, QUEUE_FRAMES, TrackedFeed, TrackedFrame
 from apcc_graph.estimation.live_guards import LimitGuard, LiveWarning, RateMonitor
+from apcc_graph.estimation.live_sources import Frame, device_frames, recording_frames
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
 from apcc_graph.estimation.smoother.keyframing import PENDING
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.window import SmootherFrame
-from apcc_graph.frontend.recordings import CameraStream, match_frames
 from apcc_graph.frontend.tracking import KLTTracker
 from apcc_graph.model.arrays import FloatArray
 from apcc_graph.model.robot import Robot
@@ -74,21 +91,16 @@ MAX_GAP = 0.2
 """Seconds of the source: under overload a frame is smoothed anyway when the last smoothed
 frame is this old (the smoother then sees at least five frames a second; with gaps of half a
 second it took each for a pause, re-acquired, and ran 100 degrees off)."""
-MAX_BEHIND = 0.1
-"""Seconds: a frame that has waited this long beyond the last smoothing's duration while
-newer ones arrived is not even tracked (the trackers then step over it), so the lag stays
-bounded when tracking alone is slower than the frames. The frames that arrived during one
-smoothing are all tracked: skipping them made KLT steps of several frames under overload, and
-broken tracks sent the estimate tens of degrees off."""
+DROP_BACKLOG = 2
+"""With keyframes, a frame is dropped from smoothing only when this many tracked frames wait
+behind it (a frame between keyframes costs a fraction of a solve, so the smoother catches up by
+deferring keyframes first); without, one waiting frame drops it."""
 
 START_WINDOWS = (1.0, 2.0, 4.0)
 """Seconds of the first frames the unknown start is searched in, in turn, until one tells it."""
 
-Frame = tuple[int, float, dict[int, NDArray]]
-"""``(index in the source, timestamp in seconds, camera -> image)``."""
-
-__all__ = ["LiveEstimate", "LiveEstimator", "LiveFrame", "LiveWarning", "device_frames",
-           "live_estimates", "recording_frames"]
+__all__ = ["MAX_BEHIND", "LiveEstimate", "LiveEstimator", "LiveFrame", "LiveWarning",
+           "device_frames", "live_estimates", "recording_frames"]
 
 
 @dataclass(frozen=True)
@@ -142,60 +154,6 @@ class LiveEstimate:
     pending: bool = False
 
 
-def recording_frames(streams: Sequence[CameraStream], cameras: Sequence[int],
-                     tolerance: float | None = None) -> Iterator[Frame]:
-    """The frames of a recording's streams (one per camera, in the order of ``cameras``),
-    matched by time (:func:`~apcc_graph.frontend.recordings.match_frames`), read in order."""
-    matched = match_frames([s.timestamps for s in streams], tolerance)
-    readers = [s.images() for s in streams]
-    for f, t in enumerate(matched.timestamps.tolist()):
-        images = {}
-        for cam, reader, wanted in zip(cameras, readers, matched.indices[:, f], strict=True):
-            for index, image in reader:
-                if index == wanted:
-                    images[cam] = image
-                    break
-        if len(images) < len(cameras):
-            return  # a stream ended early
-        yield f, t, images
-
-
-def device_frames(devices: Sequence[int], cameras: Sequence[int],
-                  clock: Callable[[], float] = time.monotonic) -> Iterator[Frame]:
-    """Frames of cameras plugged in (OpenCV device indices, one per camera in the order of
-    ``cameras``): each camera's newest image, grabbed together, timed by ``clock``.
-
-    Raises:
-        ValueError: a device OpenCV cannot open.
-    """
-    import cv2
-
-    captures = []
-    for device in devices:
-        capture = cv2.VideoCapture(int(device))
-        if not capture.isOpened():
-            raise ValueError(f"camera device {device}: OpenCV cannot open it")
-        capture.set(cv2.CAP_PROP_BUFFERSIZE, 1)
-        captures.append(capture)
-    try:
-        index = 0
-        while True:
-            if not all(c.grab() for c in captures):
-                return
-            t = clock()
-            images = {}
-            for cam, capture in zip(cameras, captures, strict=True):
-                ok, image = capture.retrieve()
-                if not ok:
-                    return
-                images[cam] = image
-            yield index, t, images
-            index += 1
-    finally:
-        for capture in captures:
-            capture.release()
-
-
 class LiveEstimator:
     """Tracks and smooths frames as they arrive (module docstring): :meth:`run` is the loop,
     an iterator over :class:`LiveEstimate`; :meth:`finish` then gives the final estimates of
@@ -211,13 +169,21 @@ class LiveEstimator:
         realtime: play the source at its own pace, dropping frames under overload; ``False``
             processes every frame as fast as it can (nothing dropped).
         clock, sleep: wall time (seconds) and waiting, replaceable in tests.
+        pipelined: track in a thread of its own, overlapping the smoothing (``False``: in the
+            loop's thread, module docstring).
+        queue: tracked frames waiting for the smoother, at most.
+
+    Attributes:
+        feed: the last run's tracking stage (its counts: ``tracked``, ``untracked``,
+            ``overflow``, ``deepest``), ``None`` before a run.
     """
 
     def __init__(self, robot: Robot, theta0: ArrayLike | None = None,
                  settings: SmootherOptions | None = None, realtime: bool = True,
                  clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep,
-                 graph: GraphOptions | None = None) -> None:
+                 graph: GraphOptions | None = None, pipelined: bool = True,
+                 queue: int = QUEUE_FRAMES) -> None:
         self.robot, self.settings = robot, settings
         self.graph = GraphOptions() if graph is None else graph
         self.smoother = None if theta0 is None else self._smoother(theta0, self.graph)
@@ -225,85 +191,109 @@ class LiveEstimator:
         self.trackers = {cam: KLTTracker((c.width, c.height))
                          for cam, c in enumerate(robot.cameras) if c is not None}
         self.realtime, self.clock, self.sleep = realtime, clock, sleep
-        self.dropped = 0
         self.interrupted = False  # ``run`` stopped on its ``stop`` event
         self.limits = LimitGuard(np.array([seg.theta_max for seg in robot.segments]))
         self.rate = RateMonitor()
         self._done: deque[float] = deque()
         self._index: dict[int, int] = {}  # the smoother's frame -> the source's index
-        self._kept: list[tuple[int, float, dict[int, tuple[NDArray, NDArray]], float]] = []
+        self._kept: list[TrackedFrame] = []
         self._broken = False  # an exception left the smoother mid-update
         self._window = 0  # the start search's next window (START_WINDOWS)
-        self._smoothing = 0.0  # seconds the last smoothed frame took
+        self.pipelined, self.queue = pipelined, queue
+        self.feed: TrackedFeed | None = None
+        self._dropped_here = 0  # dropped by the smoothing stage's policy
         self._pool = ThreadPoolExecutor(max_workers=max(len(self.trackers), 1))
+
+    @property
+    def dropped(self) -> int:
+        """Frames of the source not smoothed so far: not tracked, pushed out of the full queue,
+        or tracked and passed over by the smoothing stage (module docstring)."""
+        feed = self.feed
+        extra = 0 if feed is None else feed.untracked + feed.overflow
+        return self._dropped_here + extra
 
     def run(self, frames: Iterator[Frame], stop: threading.Event | None = None
             ) -> Iterator[LiveEstimate]:
-        """An estimate per smoothed frame of ``frames`` (:func:`recording_frames`,
-        :func:`device_frames`), until the source ends, ``stop`` is set (checked between
-        frames: :attr:`interrupted` then says so) or the iterator is closed."""
-        source = iter(frames)
-        pending = next(source, None)
-        start: tuple[float, float] | None = None  # wall time and source time of the first
+        """An estimate per smoothed frame of ``frames``
+        (:func:`~apcc_graph.estimation.live_sources.recording_frames`,
+        :func:`~apcc_graph.estimation.live_sources.device_frames`), until the source ends,
+        ``stop`` is set (checked between frames: :attr:`interrupted` then says so) or the
+        iterator is closed."""
+        self.feed = feed = TrackedFeed(frames, self._track, self.realtime, self.clock,
+                                       self.sleep, self.queue, threaded=self.pipelined)
         smoothed = -np.inf  # source time of the last smoothed frame
-        while pending is not None:
-            if stop is not None and stop.is_set():
-                self.interrupted = True
-                break  # frames kept for the start search are still searched and smoothed
-            index, t, images = pending
-            start = start or (self.clock(), t)
-            arrival = start[0] + (t - start[1])
-            pending = next(source, None)
-            if self.realtime and self.smoother is not None:  # not while the start is searched
-                self.rate.arrived(t, index)
-            if self.realtime:
-                if arrival > self.clock():
-                    self.sleep(arrival - self.clock())
-                elif (self.smoother is not None and self._waiting(pending, start)
-                      and self.clock() - arrival > MAX_BEHIND + self._smoothing):
-                    self.dropped += 1  # too far behind even to track it
+        try:
+            while True:
+                if stop is not None and stop.is_set():
+                    self.interrupted = True
+                    break  # frames kept for the start search are still searched and smoothed
+                frame = feed.get()
+                self._count_arrivals(feed)
+                if frame is None:
+                    break
+                if self.smoother is None:  # the start is still being searched for
+                    self._kept.append(frame)
+                    ended = feed.backlog == 0 and feed.exhausted
+                    if self._search_due(ended):
+                        feed.pause()
+                        if self._search_start(ended):
+                            yield from self._kept_frames()
+                            smoothed = frame.timestamp
+                        feed.resume()  # a recording's replay resumes after the search
                     continue
-            tracks = self._track(images)
-            if self.smoother is None:  # the start is still being searched for
-                self._kept.append((index, t, tracks, arrival))
-                if self._search_start(ended=pending is None):
-                    yield from self._kept_frames()
-                    smoothed = t
-                    start = (self.clock(), t)  # a recording's replay resumes after the search
-                continue
-            if self.realtime and self._waiting(pending, start) and t - smoothed < MAX_GAP:
-                self.dropped += 1  # tracked, not smoothed: a newer frame is waiting
-                continue
-            smoothed = t
-            began = self.clock()
-            estimate = self._process(index, t, tracks, arrival)
-            self._smoothing = self.clock() - began
-            yield estimate
+                backlog = feed.backlog
+                limit = 1 if self._keys_off() else DROP_BACKLOG
+                if self.realtime and backlog >= limit and frame.timestamp - smoothed < MAX_GAP:
+                    self._dropped_here += 1  # tracked, not smoothed: newer frames wait
+                    continue
+                smoothed = frame.timestamp
+                began = self.clock()
+                yield self._process(frame, busy=self.realtime and backlog > 0)
+                if not self.pipelined:  # tracking waited for this smoothing
+                    feed.allowance = self.clock() - began
+        finally:
+            feed.close()
         if self.smoother is None and self._kept:  # a source shorter than the search, or stopped
             self._search_start(ended=True)
             yield from self._kept_frames()
+
+    def _keys_off(self) -> bool:
+        """Whether the smoother solves at every frame (no keyframes to defer)."""
+        return self.settings is None or self.settings.keyframes is None
+
+    def _count_arrivals(self, feed: TrackedFeed) -> None:
+        """The frames that arrived since, to the rate monitor (real time, once smoothing)."""
+        for t, index in feed.arrivals():
+            if self.realtime and self.smoother is not None:
+                self.rate.arrived(t, index)
 
     def _kept_frames(self) -> Iterator[LiveEstimate]:
         """The frames kept for the start search, smoothed (in real time one per
         :data:`MAX_GAP` of the source and the last: the others count as dropped)."""
         kept, self._kept = self._kept, []
         last = -np.inf
-        for k, (index, t, tracks, arrival) in enumerate(kept):
-            if self.realtime and t - last < MAX_GAP and k < len(kept) - 1:
-                self.dropped += 1
+        for k, frame in enumerate(kept):
+            if self.realtime and frame.timestamp - last < MAX_GAP and k < len(kept) - 1:
+                self._dropped_here += 1
                 continue
-            last = t
-            yield self._process(index, t, tracks, arrival, count=False)
+            last = frame.timestamp
+            yield self._process(frame, count=False)
         self.rate.restart()  # the search's own pause is not an overload
+
+    def _search_due(self, ended: bool) -> bool:
+        """Whether the kept frames span the next of :data:`START_WINDOWS` (or the source
+        ended)."""
+        span = self._kept[-1].timestamp - self._kept[0].timestamp
+        return ended or span + 1e-9 >= START_WINDOWS[self._window]
 
     def _search_start(self, ended: bool) -> bool:
         """The start searched in the kept frames once they span the next of
         :data:`START_WINDOWS` (or the source ended); whether the smoother now exists."""
         from apcc_graph.estimation.start_search import FIRM_SIGMA, PRIOR_SIGMA, find_start
 
-        span = self._kept[-1][1] - self._kept[0][1]
-        if not ended and span + 1e-9 < START_WINDOWS[self._window]:
+        if not self._search_due(ended):
             return False
+        span = self._kept[-1].timestamp - self._kept[0].timestamp
         recording = self._recording()
         found = None
         if recording.n_frames >= 2:
@@ -333,13 +323,9 @@ class LiveEstimator:
 
     def _recording(self) -> Recording:
         """The kept frames as a recording (frame k: the k-th kept)."""
-        return Recording(self.robot, [kept[1] for kept in self._kept],
+        return Recording(self.robot, [kept.timestamp for kept in self._kept],
                          stacked_tracks(self.robot.camera_segments,
-                                        [kept[2] for kept in self._kept]))
-
-    def _waiting(self, pending: Frame | None, start: tuple[float, float]) -> bool:
-        """Whether the next frame has already arrived."""
-        return pending is not None and start[0] + (pending[1] - start[1]) <= self.clock()
+                                        [kept.tracks for kept in self._kept]))
 
     def _track(self, images: dict[int, NDArray]) -> dict[int, tuple[NDArray, NDArray]]:
         """Each camera's tracks in its new image, the cameras in parallel threads (OpenCV's
@@ -348,15 +334,17 @@ class LiveEstimator:
         found = self._pool.map(lambda cam: self.trackers[cam].update(images[cam]), cams)
         return dict(zip(cams, found, strict=True))
 
-    def _process(self, index: int, t: float, tracks: dict[int, tuple[NDArray, NDArray]],
-                 arrival: float, count: bool = True) -> LiveEstimate:
+    def _process(self, frame: TrackedFrame, count: bool = True, busy: bool = False
+                 ) -> LiveEstimate:
         """One tracked frame smoothed (and, once, a warning when the smoothed rate falls
-        behind the recording's; not for the frames kept during the start search)."""
+        behind the recording's; not for the frames kept during the start search); ``busy``:
+        newer frames wait (a keyframe may wait too)."""
         assert self.smoother is not None
+        index, t, arrival = frame.index, frame.timestamp, frame.arrival
         if count and self.realtime:
             self.rate.smoothed(t)
         try:
-            estimate = self.smoother.update(FrameObservations(t, tracks))
+            estimate = self.smoother.update(FrameObservations(t, frame.tracks), busy=busy)
         except BaseException:
             self._broken = True  # gtsam may be mid-update: never touched again
             raise

@@ -191,8 +191,10 @@ class FixedLagSmoother:
         return self._model.outliers
 
     # ------------------------------------------------------------------------- update
-    def update(self, observations: FrameObservations) -> SmootherFrame:
+    def update(self, observations: FrameObservations, busy: bool = False) -> SmootherFrame:
         """Add one frame; returns that frame's estimate (filtered: only past frames seen).
+        ``busy`` (with keyframes): the caller has frames waiting, so a keyframe the rule asks
+        for may wait (:meth:`~apcc_graph.estimation.smoother.keyframing.Keyframes.decide`).
 
         Raises:
             ValueError: a timestamp not after the previous frame's, or observations of a
@@ -233,7 +235,7 @@ class FixedLagSmoother:
                      self.theta0, window, self.bending, self.options,
                      self.settings.window.loose_sigma)
         # 7. solve (with keyframes: at a keyframe only)
-        if self._keys is not None and self._defer(f, t, rows, base, thetas, status):
+        if self._keys is not None and self._defer(f, t, rows, base, thetas, status, busy):
             self._keys.wait(add, self._solver.restarts)
             window.count += 1
             return still.frame_of(with_status(self._frame_estimate(f, solved=False), PENDING))
@@ -250,14 +252,14 @@ class FixedLagSmoother:
         return Additions() if self._keys is None else self._keys.take(self._solver.restarts)
 
     def _defer(self, f: int, t: float, rows: Rows, base: FloatArray | None, x: FloatArray,
-                status: NDArray[np.str_]) -> bool:
+               status: NDArray[np.str_], busy: bool) -> bool:
         """With keyframes: whether graph frame ``f`` waits for the next keyframe's update
         (:mod:`~apcc_graph.estimation.smoother.keyframing`); a keyframe is recorded."""
         keys = self._keys
         assert keys is not None
         measured = f > 0 and bool(np.all(status == "ok"))
         if (f > 0 and self._recovery.reacquiring is None
-                and not keys.decide(t, rows, x, base, measured, self._window.latest)):
+                and not keys.decide(t, rows, x, base, measured, self._window.latest, busy)):
             return True
         if f == 0:
             keys.decide(t, rows, x, base, False, self._window.latest)

@@ -29,7 +29,13 @@ from dataclasses import replace
 import numpy as np
 
 from apcc_graph.estimation.graph import camera_chain
-from apcc_graph.estimation.keyframes import KeyframeRule, ViewChange, keyframe_reasons, view_change
+from apcc_graph.estimation.keyframes import (
+    TIME_TOLERANCE,
+    KeyframeRule,
+    ViewChange,
+    keyframe_reasons,
+    view_change,
+)
 from apcc_graph.estimation.projection_tracks import Rows
 from apcc_graph.estimation.smoother.solver import Additions
 from apcc_graph.estimation.window import SmootherFrame
@@ -60,6 +66,8 @@ class Keyframes:
         reasons: how many keyframes each reason made (``"first"``, ``"warm-up"``,
             ``"unmeasured"``, ``"time"``, ``"rotation"``, ``"parallax"``, ``"tracks"``).
         frames, keyframes: frames decided so far, and how many were keyframes.
+        deferred: frames the rule made keyframes that waited instead, because the caller was
+            busy (``decide(..., busy=True)``).
     """
 
     def __init__(self, rule: KeyframeRule, robot: Robot, bending: Bending,
@@ -68,7 +76,7 @@ class Keyframes:
         self._start = 0.0  # graph time of the first frame since the window (re)started
         self._chains = {c: camera_chain(robot, c, bending) for c in robot.camera_segments}
         self.reasons: dict[str, int] = {}
-        self.frames = self.keyframes = 0
+        self.frames = self.keyframes = self.deferred = 0
         self._key: tuple[int, float, Rows, FloatArray | None] | None = None
         self.commit_due = True  # the ended tracks' pieces are committed at the next frame
         self._pending: Additions | None = None  # what the frames since the keyframe added
@@ -103,10 +111,14 @@ class Keyframes:
         return out
 
     def decide(self, t: float, rows: Rows, x: FloatArray, base: FloatArray | None,
-               measured: bool, latest: Callable[[int], FloatArray | None]) -> list[str]:
+               measured: bool, latest: Callable[[int], FloatArray | None],
+               busy: bool = False) -> list[str]:
         """Why the frame at graph time ``t`` whose frame step gave ``x`` is a keyframe (empty:
         it is not); ``measured``: the frame step fitted it to known points; ``latest``: the
-        window's estimate of a frame (``None``: it left)."""
+        window's estimate of a frame (``None``: it left); ``busy``: the caller has frames
+        waiting, so the rule's own reasons wait too while the last keyframe is less than the
+        rule's ``max_deferral`` old (the first frame, the warm-up and an unmeasured frame
+        never wait)."""
         self.frames += 1
         key_x = None if self._key is None else latest(self._key[0])
         if self._key is None or key_x is None:
@@ -116,8 +128,11 @@ class Keyframes:
         elif not measured:
             reasons = ["unmeasured"]
         else:
-            reasons = keyframe_reasons(self.rule, t - self._key[1],
-                                       self.changes(rows, x, base, key_x))
+            elapsed = t - self._key[1]
+            reasons = keyframe_reasons(self.rule, elapsed, self.changes(rows, x, base, key_x))
+            if reasons and busy and elapsed < self.rule.max_deferral - TIME_TOLERANCE:
+                self.deferred += 1
+                reasons = []
         for reason in {r.split(" of ")[0] for r in reasons}:
             self.reasons[reason] = self.reasons.get(reason, 0) + 1
         if reasons:
