@@ -48,7 +48,7 @@ def _busy_estimator(seconds: float) -> LiveEstimator:
     (tracking in the loop's thread: what arrived is known exactly when)."""
     clock = _Clock()
     live = LiveEstimator(load_robot(ROBOT), np.zeros(3), clock=clock, sleep=clock.sleep,
-                         pipelined=False)
+                         tracking="inline")
     process = live._process
 
     def busy(*args: object, **kwargs: object) -> object:
@@ -133,7 +133,6 @@ def test_live_interrupted_mid_run_leaves_complete_readable_outputs(
     """Ctrl-C after the fifth frame (the stop event set, as the SIGINT handler sets it): the
     command stops at the next frame boundary, smooths and writes the window, prints its summary
     and exits with 130; theta.csv and the TUM files hold every frame processed."""
-    from apcc_graph.estimation import live as live_module
 
     run = LiveEstimator.run
 
@@ -145,8 +144,7 @@ def test_live_interrupted_mid_run_leaves_complete_readable_outputs(
                 stop.set()  # type: ignore[attr-defined]
 
     monkeypatch.setattr(LiveEstimator, "run", interrupted)
-    monkeypatch.setattr(live_module, "recording_frames", lambda *a, **k: _frames())
-    monkeypatch.setattr("apcc_graph.frontend.recordings.video_streams", lambda files: [])
+    monkeypatch.setattr("apcc_graph.cli.live._frames", lambda *a, **k: _frames())
     out = tmp_path / "live"
     code = main(["live", "--video", "a.mp4,b.mp4,c.mp4", "--robot", str(ROBOT), "--out",
                  str(out), "--no-realtime", "--theta0-deg", "0,0,0"])
@@ -163,6 +161,10 @@ def test_live_interrupted_mid_run_leaves_complete_readable_outputs(
     assert [int(r.split(",")[0]) for r in rows] == [0, 1, 2, 3, 4]
     for i in range(1, 4):
         assert (out / f"tips_seg_{i}.tum").read_text().count("\n") == 5
+    now = (out / "theta_now.csv").read_text().splitlines()
+    assert now[0].endswith(",estimate,latency_ms") and len(now) == 6  # each estimate out
+    assert [r.split(",")[-2] for r in now[1:]] == ["filtered"] * 5  # no keyframes: solved
+    monkeypatch.undo()  # the real sources again: the arguments are checked
     assert main(["live", "--video", "a.mp4", "--robot", str(ROBOT), "--out",
                  str(tmp_path / "x")]) == 1
     assert "--video names 1 files for 3 cameras" in capsys.readouterr().err
@@ -171,8 +173,8 @@ def test_live_interrupted_mid_run_leaves_complete_readable_outputs(
 def test_live_keyframes_from_the_command_line_write_every_frame(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``apcc-graph live --keyframes``: the smoother gets the keyframe rule, and theta.csv holds
-    every frame once, in order."""
-    from apcc_graph.estimation import live as live_module
+    every frame once, in order; theta_now.csv holds each frame's estimate as it came out and
+    says which: "fit" (with empty sigmas) for the frames between keyframes, else "filtered"."""
     from apcc_graph.estimation.keyframes import KeyframeRule
 
     made = []
@@ -183,8 +185,7 @@ def test_live_keyframes_from_the_command_line_write_every_frame(
         made.append(self.settings)
 
     monkeypatch.setattr(LiveEstimator, "__init__", recorded)
-    monkeypatch.setattr(live_module, "recording_frames", lambda *a, **k: _frames(20))
-    monkeypatch.setattr("apcc_graph.frontend.recordings.video_streams", lambda files: [])
+    monkeypatch.setattr("apcc_graph.cli.live._frames", lambda *a, **k: _frames(20))
     out = tmp_path / "live"
     assert main(["live", "--video", "a.mp4,b.mp4,c.mp4", "--robot", str(ROBOT), "--out",
                  str(out), "--no-realtime", "--theta0-deg", "0,0,0", "--lag", "0.3",
@@ -192,6 +193,13 @@ def test_live_keyframes_from_the_command_line_write_every_frame(
     assert made and made[0].keyframes == KeyframeRule() and made[0].window.lag == 0.3
     rows = (out / "theta.csv").read_text().splitlines()[1:]
     assert [int(r.split(",")[0]) for r in rows] == list(range(20))
+    now = [r.split(",") for r in (out / "theta_now.csv").read_text().splitlines()[1:]]
+    assert [int(r[0]) for r in now] == list(range(20))
+    kinds = [r[-2] for r in now]
+    assert "fit" in kinds and kinds[0] == "filtered" and set(kinds) == {"fit", "filtered"}
+    for r in now:  # sigma_1..3 are columns 5-7: empty for the fits (not solved yet)
+        assert r[-2] != "fit" or r[5:8] == ["", "", ""]
+    assert all(float(v) > 0 for v in now[0][5:8])  # the first frame's, solved
 
 
 def test_a_machine_that_does_not_keep_up_is_warned_about_by_rate_and_early() -> None:
@@ -304,10 +312,8 @@ def test_live_force_empties_the_folder_first_and_refuses_one_holding_an_input(
     a folder holding the --robot file is refused with one line, the file kept."""
     import shutil
 
-    from apcc_graph.estimation import live as live_module
 
-    monkeypatch.setattr(live_module, "recording_frames", lambda *a, **k: _frames())
-    monkeypatch.setattr("apcc_graph.frontend.recordings.video_streams", lambda files: [])
+    monkeypatch.setattr("apcc_graph.cli.live._frames", lambda *a, **k: _frames())
     out = tmp_path / "live"
     (out / "figures").mkdir(parents=True)
     (out / "figures" / "old.png").write_bytes(b"png")
@@ -319,8 +325,9 @@ def test_live_force_empties_the_folder_first_and_refuses_one_holding_an_input(
     assert main(args) == 1  # not empty, no --force
     assert "add --force" in capsys.readouterr().err
     assert main([*args, "--force"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["theta.csv", "tips_seg_1.tum",
-                                                     "tips_seg_2.tum", "tips_seg_3.tum"]
+    assert sorted(p.name for p in out.iterdir()) == ["theta.csv", "theta_now.csv",
+                                                     "tips_seg_1.tum", "tips_seg_2.tum",
+                                                     "tips_seg_3.tum"]
     table = load_theta_table(out / "theta.csv")
     assert table.frame_numbers().tolist() == list(range(FRAMES))
     assert table.thetas.shape == (FRAMES, 3) and np.all(np.isfinite(table.thetas))

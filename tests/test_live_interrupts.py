@@ -21,7 +21,6 @@ import sys
 import numpy as np
 from apcc_graph.bench.tracking import texture
 from apcc_graph.cli import main
-from apcc_graph.estimation import live
 
 def frames(*args, **kwargs):
     bases = [texture(20 + cam, (480, 700)) for cam in range(3)]
@@ -30,9 +29,8 @@ def frames(*args, **kwargs):
         yield f, f / 30.0, {cam: np.ascontiguousarray(b[:, x:x + 640])
                             for cam, b in enumerate(bases)}
 
-live.recording_frames = frames
-import apcc_graph.frontend.recordings as recordings
-recordings.video_streams = lambda files: []
+import apcc_graph.cli.live as live_cli
+live_cli._frames = frames
 sys.exit(main(["live", "--video", "a.mp4,b.mp4,c.mp4", "--robot", sys.argv[1], "--out",
                sys.argv[2], "--no-realtime", "--theta0-deg", "0,0,0", "--lag", "0.3"]))
 """
@@ -132,7 +130,7 @@ def test_stopped_during_the_start_search_the_kept_frames_are_searched_and_given(
                 stop.set()  # while frame 19 is tracked: the loop stops before frame 20
             yield f, float(sim.sequence.timestamps[f]), {-1: sim.sequence.frame(f)}
 
-    live = LiveEstimator(robot, realtime=False, pipelined=False)  # frame 20 not read ahead
+    live = LiveEstimator(robot, realtime=False, tracking="inline")  # frame 20 not read ahead
     monkeypatch.setattr(live, "_track", lambda images: dict(images[-1].tracks))
     got = list(live.run(frames(), stop))
     assert live.interrupted

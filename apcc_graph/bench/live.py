@@ -97,19 +97,19 @@ def run_live(files: list[str], truth: FloatArray, realtime: bool = True,
     start, the start it searches (``"searched"``) or the robot ``"straight"``; with
     ``keyframes`` the smoother solves at keyframes only (the default rule)."""
     from apcc_graph.estimation.keyframes import KeyframeRule
-    from apcc_graph.estimation.live import LiveEstimator, recording_frames
+    from apcc_graph.estimation.live import LiveEstimator
+    from apcc_graph.estimation.live_process import SourceSpec
     from apcc_graph.estimation.smoother_options import SmootherOptions
-    from apcc_graph.frontend.recordings import video_streams
     from apcc_graph.io.robot_file import load_robot
 
     robot = load_robot(ROBOT_FILE)
-    streams = video_streams(files)
     theta0 = {"true": truth[0], "searched": None, "straight": np.zeros(truth.shape[1])}[start]
     settings = SmootherOptions(keyframes=KeyframeRule()) if keyframes else None
     live = LiveEstimator(robot, theta0, settings=settings, realtime=realtime)
     finals, latencies = {}, []
     began = time.perf_counter()
-    for est in live.run(recording_frames(streams, robot.camera_segments)):
+    source = SourceSpec("video", tuple(robot.camera_segments), paths=tuple(files))
+    for est in live.run(source):
         latencies.append(est.latency)
         finals.update({fr.frame: fr.thetas for fr in est.final})
     finals.update({fr.frame: fr.thetas for fr in live.finish()})

@@ -24,6 +24,9 @@ from apcc_graph.cli.common import (
 
 if TYPE_CHECKING:
     from apcc_graph.estimation.live import LiveEstimate
+    from apcc_graph.estimation.live_process import SourceSpec
+
+TRACKING = ("process", "thread", "inline")  # as apcc_graph.estimation.live.TRACKING
 
 EXAMPLE = (
     "examples:\n"
@@ -48,10 +51,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "window are smoothed and written, then the command exits with code 130. Without "
         "--theta0-deg the start is searched in the first second of frames, as estimate does (a "
         "Ctrl-C before then searches it in the frames so far and writes them). A "
-        "recording plays at its own pace: every frame is tracked, but when the smoother falls "
-        "behind, the frames that arrived while it was busy are not smoothed but the newest, "
-        "and are counted as dropped (--no-realtime smooths every frame, as fast as it can). "
-        "See docs/estimation.md, \"Live\".",
+        "recording plays at its own pace: every frame is tracked (in a process of its own, "
+        "beside the smoother), but when the smoother falls behind it first defers keyframes "
+        "(--keyframes), then smooths the newest of the frames that waited and counts the "
+        "others as dropped (--no-realtime smooths every frame, as fast as it can). Every "
+        "estimate as it comes out is appended to --out/theta_now.csv, which says whether it "
+        "is the filtered estimate or a frame's fit awaiting the next keyframe, and its "
+        "latency. See docs/estimation.md, \"Live\".",
         epilog=EXAMPLE, formatter_class=FORMATTER,
         parents=[force_option("empty an --out folder that is not empty first (it must not "
                               "be or hold an input, the current folder or your home)")])
@@ -76,6 +82,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                       help="the smoother solves at keyframes only; the frames between return "
                       "their per-frame fit at once and are smoothed at the next keyframe "
                       "(docs/estimation.md, keyframes)")
+    live.add_argument("--tracking", choices=TRACKING, default="process",
+                      help="where the cameras are tracked: a process of its own that reads the "
+                      "source (default: keeps up beside the smoother), a thread of this one, or "
+                      "inline between smoothings")
     live.set_defaults(run=run)
 
 
@@ -90,6 +100,7 @@ def run(args: argparse.Namespace) -> str:
     from apcc_graph.estimation.smoother_options import SmootherOptions, WindowOptions
     from apcc_graph.io.console import StatusLine
     from apcc_graph.io.estimates import AppendedEstimate
+    from apcc_graph.io.live_rows import NowEstimates
     from apcc_graph.io.robot_file import load_robot
 
     robot = load_robot(args.robot)
@@ -106,14 +117,18 @@ def run(args: argparse.Namespace) -> str:
                                keyframes=KeyframeRule() if args.keyframes else None)
     estimator = LiveEstimator(robot, theta0, settings,
                               realtime=not args.no_realtime,
-                              graph=GraphOptions(model_sigma=chosen_model_sigma(args)))
+                              graph=GraphOptions(model_sigma=chosen_model_sigma(args)),
+                              tracking=args.tracking)
     files = AppendedEstimate(out, robot.n_segments, lambda th: robot.forward(th))
+    now = NowEstimates(out, robot.n_segments)
     status = StatusLine()
     latencies, processed, began = [], 0, time.monotonic()
     with deferred_interrupts() as stop:
         try:
             shown = 0.0
             for est in estimator.run(frames, stop):
+                now.append(est.index, est.timestamp, est.thetas, est.sigmas, est.clamped,
+                           est.pending, est.latency)
                 for fr in est.final:
                     files.append(fr.frame, fr.timestamp, fr.thetas, fr.sigmas, fr.clamped)
                 processed += 1
@@ -126,6 +141,7 @@ def run(args: argparse.Namespace) -> str:
             for fr in estimator.finish():
                 files.append(fr.frame, fr.timestamp, fr.thetas, fr.sigmas, fr.clamped)
             files.close()
+            now.close()
     estimator.interrupted = estimator.interrupted or stop.is_set()  # also while finishing
     wall = time.monotonic() - began
     median = 1e3 * float(np.median(latencies)) if latencies else float("nan")
@@ -134,7 +150,8 @@ def run(args: argparse.Namespace) -> str:
     summary = (f"{'interrupted: ' if estimator.interrupted else ''}{processed} frames estimated "
                f"in {wall:.1f} s ({processed / max(wall, 1e-9):.1f} per second), "
                f"{estimator.dropped} dropped, median latency {median:.0f} ms; wrote {files.rows} "
-               f"rows to {Path(out) / 'theta.csv'} and tips_seg_<i>.tum{clamped}"
+               f"rows to {Path(out) / 'theta.csv'} and tips_seg_<i>.tum, {now.rows} to "
+               f"theta_now.csv{clamped}"
                + (f"; {estimator.start_search}" if estimator.start_search else ""))
     if estimator.interrupted:
         print(summary, flush=True)
@@ -162,12 +179,15 @@ def _status_text(est: LiveEstimate) -> str:
             f"dropped {est.dropped:5d}  theta {angles} deg")
 
 
-def _frames(args: argparse.Namespace, robot: object):  # noqa: ANN202 (an iterator of frames)
-    """The frame source the arguments name."""
-    from apcc_graph.estimation.live import device_frames, recording_frames
-    from apcc_graph.frontend.recordings import bag_streams, video_streams
+def _frames(args: argparse.Namespace, robot: object) -> SourceSpec:
+    """The frame source the arguments name, checked here (a file, bag or topic that cannot be
+    opened is named before the run starts)."""
+    import cv2
 
-    cams = list(robot.camera_segments)  # type: ignore[attr-defined]
+    from apcc_graph.estimation.live_process import SourceSpec
+    from apcc_graph.frontend.recordings import bag_streams
+
+    cams = tuple(robot.camera_segments)  # type: ignore[attr-defined]
     given = [x is not None for x in (args.source, args.video, args.devices)]
     if sum(given) != 1:
         raise UserError("give one source: a bag (SOURCE), --video or --devices")
@@ -175,15 +195,23 @@ def _frames(args: argparse.Namespace, robot: object):  # noqa: ANN202 (an iterat
         devices = int_list(args.devices, "--devices")
         if len(devices) != len(cams):
             raise UserError(f"--devices names {len(devices)} devices for {len(cams)} cameras")
-        return device_frames(devices, cams)
+        return SourceSpec("devices", cams, devices=tuple(devices))
     if args.video is not None:
         files = [v for v in args.video.split(",") if v]
         if len(files) != len(cams):
             raise UserError(f"--video names {len(files)} files for {len(cams)} cameras")
-        streams = video_streams(files)
-    else:
-        from apcc_graph.cli.track import _topics
+        for file in files:  # each opens and has an image (read in the tracking process)
+            capture = cv2.VideoCapture(file)
+            ok = capture.isOpened() and capture.grab()
+            capture.release()
+            if not ok:
+                raise UserError(f"{file}: OpenCV cannot open it as a video, or it has no "
+                                "frames")
+        return SourceSpec("video", cams, paths=tuple(files), tolerance=args.sync_tolerance)
+    from apcc_graph.cli.track import _topics
 
-        topics = _topics(args.topics, args.robot, robot)
-        streams = bag_streams(args.source, topics, len(cams))
-    return recording_frames(streams, cams, args.sync_tolerance)
+    topics = _topics(args.topics, args.robot, robot)
+    bag_streams(args.source, topics, len(cams))  # the bag and its topics open
+    return SourceSpec("bag", cams, paths=(str(args.source),),
+                      topics=None if topics is None else tuple(topics),
+                      tolerance=args.sync_tolerance)

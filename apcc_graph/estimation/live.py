@@ -35,8 +35,15 @@ loop gives up, in this order:
 A camera device delivers its newest image when asked (OpenCV's buffer of one), so it drops by
 itself. When fewer frames are smoothed than arrive by a margin over the first second already,
 a :class:`LiveWarning` says both rates
-(:class:`~apcc_graph.estimation.live_guards.RateMonitor`). ``pipelined=False`` tracks in the
-loop's own thread (no overlap; the same policy, deterministic under a controlled clock).
+(:class:`~apcc_graph.estimation.live_guards.RateMonitor`).
+
+**Where tracking runs** (``tracking``): ``"process"`` (the default) reads a source described by a
+:class:`~apcc_graph.estimation.live_process.SourceSpec` and tracks it in a process of its own
+(:mod:`~apcc_graph.estimation.live_process`: in this one, gtsam's updates hold the interpreter
+and starve a tracking thread), and sends the images of a source given as an iterator to a
+:class:`~apcc_graph.frontend.tracking_process.TrackingProcess`; ``"thread"`` tracks in a thread
+of this process, the cameras in threads; ``"inline"`` in the loop's own thread (no overlap;
+the same policy, deterministic under a controlled clock).
 
 **Unknown start.** Without ``theta0`` the first second of tracked frames is kept, the start is
 searched in it as ``estimate`` searches it (:func:`~apcc_graph.estimation.start_search.
@@ -67,7 +74,7 @@ import warnings
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -75,6 +82,8 @@ from numpy.typing import ArrayLike, NDArray
 from apcc_graph.estimation.blackout import stacked_tracks
 from apcc_graph.estimation.live_feed import MAX_BEHIND, QUEUE_FRAMES, TrackedFeed, TrackedFrame
 from apcc_graph.estimation.live_guards import LimitGuard, LiveWarning, RateMonitor
+from apcc_graph.estimation.live_process import ProcessSource, SourceSpec
+from apcc_graph.estimation.live_results import LiveEstimate, LiveFrame
 from apcc_graph.estimation.live_sources import Frame, device_frames, recording_frames
 from apcc_graph.estimation.options import GraphOptions
 from apcc_graph.estimation.smoother import FixedLagSmoother
@@ -82,7 +91,7 @@ from apcc_graph.estimation.smoother.keyframing import PENDING
 from apcc_graph.estimation.smoother_options import SmootherOptions
 from apcc_graph.estimation.window import SmootherFrame
 from apcc_graph.frontend.tracking import KLTTracker
-from apcc_graph.model.arrays import FloatArray
+from apcc_graph.frontend.tracking_process import TrackingProcess
 from apcc_graph.model.robot import Robot
 from apcc_graph.model.sequence import FrameObservations
 from apcc_graph.model.sequence import Sequence as Recording
@@ -91,6 +100,9 @@ MAX_GAP = 0.2
 """Seconds of the source: under overload a frame is smoothed anyway when the last smoothed
 frame is this old (the smoother then sees at least five frames a second; with gaps of half a
 second it took each for a pause, re-acquired, and ran 100 degrees off)."""
+TRACKING = ("process", "thread", "inline")
+"""Where the live loop tracks the cameras (module docstring)."""
+
 DROP_BACKLOG = 2
 """With keyframes, a frame is dropped from smoothing only when this many tracked frames wait
 behind it (a frame between keyframes costs a fraction of a solve, so the smoother catches up by
@@ -101,57 +113,6 @@ START_WINDOWS = (1.0, 2.0, 4.0)
 
 __all__ = ["MAX_BEHIND", "LiveEstimate", "LiveEstimator", "LiveFrame", "LiveWarning",
            "device_frames", "live_estimates", "recording_frames"]
-
-
-@dataclass(frozen=True)
-class LiveFrame:
-    """A frame's final estimate (it left the smoother's window).
-
-    Attributes:
-        frame: the frame's index in the source.
-        timestamp: seconds (the source's clock).
-        thetas: ``(S,)`` radians, clamped to each segment's ``[-theta_max, theta_max]``.
-        sigmas: ``(S,)`` marginal standard deviations (radians).
-        clamped: ``(S,)`` which angles were beyond their limit (and clamped to it).
-    """
-
-    frame: int
-    timestamp: float
-    thetas: FloatArray
-    sigmas: FloatArray
-    clamped: NDArray[np.bool_]
-
-
-@dataclass(frozen=True)
-class LiveEstimate:
-    """One processed frame of :func:`live_estimates`.
-
-    Attributes:
-        index: the frame's index in the source (frames dropped before it are skipped).
-        timestamp: the frame's time (seconds, the source's clock).
-        thetas: ``(S,)`` its filtered estimate (radians: only frames up to it were seen),
-            clamped to the joint limits.
-        sigmas: ``(S,)`` their marginal standard deviations (radians).
-        final: the frames that left the smoother's window with this update, their final
-            estimates (``frame``: the index in the source).
-        clamped: ``(S,)`` which of ``thetas`` were beyond their limit.
-        latency: seconds from the frame's arrival to this estimate.
-        fps: frames processed per second over the last second of wall time.
-        dropped: frames dropped so far (arrived while the estimator was busy).
-        pending: the estimate is the frame's fit to the window's points, before the smoother
-            solved with it (keyframes: smoothed at the next one); else the filtered estimate.
-    """
-
-    index: int
-    timestamp: float
-    thetas: FloatArray
-    sigmas: FloatArray
-    final: list[LiveFrame] = field(default_factory=list)
-    latency: float = 0.0
-    fps: float = 0.0
-    dropped: int = 0
-    clamped: NDArray[np.bool_] | None = None
-    pending: bool = False
 
 
 class LiveEstimator:
@@ -169,8 +130,7 @@ class LiveEstimator:
         realtime: play the source at its own pace, dropping frames under overload; ``False``
             processes every frame as fast as it can (nothing dropped).
         clock, sleep: wall time (seconds) and waiting, replaceable in tests.
-        pipelined: track in a thread of its own, overlapping the smoothing (``False``: in the
-            loop's thread, module docstring).
+        tracking: where the cameras are tracked, one of :data:`TRACKING` (module docstring).
         queue: tracked frames waiting for the smoother, at most.
 
     Attributes:
@@ -182,8 +142,11 @@ class LiveEstimator:
                  settings: SmootherOptions | None = None, realtime: bool = True,
                  clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep,
-                 graph: GraphOptions | None = None, pipelined: bool = True,
+                 graph: GraphOptions | None = None, tracking: str = "process",
                  queue: int = QUEUE_FRAMES) -> None:
+        if tracking not in TRACKING:
+            raise ValueError(f"LiveEstimator tracking = {tracking!r}: expected one of "
+                             f"{', '.join(TRACKING)}")
         self.robot, self.settings = robot, settings
         self.graph = GraphOptions() if graph is None else graph
         self.smoother = None if theta0 is None else self._smoother(theta0, self.graph)
@@ -199,8 +162,10 @@ class LiveEstimator:
         self._kept: list[TrackedFrame] = []
         self._broken = False  # an exception left the smoother mid-update
         self._window = 0  # the start search's next window (START_WINDOWS)
-        self.pipelined, self.queue = pipelined, queue
+        self.tracking, self.queue = tracking, queue
         self.feed: TrackedFeed | None = None
+        self._tracking: TrackingProcess | None = None
+        self._remote: ProcessSource | None = None
         self._dropped_here = 0  # dropped by the smoothing stage's policy
         self._pool = ThreadPoolExecutor(max_workers=max(len(self.trackers), 1))
 
@@ -212,15 +177,16 @@ class LiveEstimator:
         extra = 0 if feed is None else feed.untracked + feed.overflow
         return self._dropped_here + extra
 
-    def run(self, frames: Iterator[Frame], stop: threading.Event | None = None
+    def run(self, frames: Iterator[Frame] | SourceSpec, stop: threading.Event | None = None
             ) -> Iterator[LiveEstimate]:
         """An estimate per smoothed frame of ``frames``
         (:func:`~apcc_graph.estimation.live_sources.recording_frames`,
-        :func:`~apcc_graph.estimation.live_sources.device_frames`), until the source ends,
+        :func:`~apcc_graph.estimation.live_sources.device_frames`, or a
+        :class:`~apcc_graph.estimation.live_process.SourceSpec`: read and tracked in a process
+        of its own, module docstring), until the source ends,
         ``stop`` is set (checked between frames: :attr:`interrupted` then says so) or the
         iterator is closed."""
-        self.feed = feed = TrackedFeed(frames, self._track, self.realtime, self.clock,
-                                       self.sleep, self.queue, threaded=self.pipelined)
+        self.feed = feed = self._feed(frames)
         smoothed = -np.inf  # source time of the last smoothed frame
         try:
             while True:
@@ -249,13 +215,33 @@ class LiveEstimator:
                 smoothed = frame.timestamp
                 began = self.clock()
                 yield self._process(frame, busy=self.realtime and backlog > 0)
-                if not self.pipelined:  # tracking waited for this smoothing
+                if self.tracking == "inline":  # tracking waited for this smoothing
                     feed.allowance = self.clock() - began
         finally:
             feed.close()
+            for stage in (self._tracking, self._remote):
+                if stage is not None:
+                    stage.close()
+            self._tracking = self._remote = None
         if self.smoother is None and self._kept:  # a source shorter than the search, or stopped
             self._search_start(ended=True)
             yield from self._kept_frames()
+
+    def _feed(self, frames: Iterator[Frame] | SourceSpec) -> TrackedFeed:
+        """The tracking stage of a run (module docstring; a source read in a process only on
+        the wall clock: a controlled clock is this process's)."""
+        sizes = {cam: (c.width, c.height) for cam, c in enumerate(self.robot.cameras)
+                 if c is not None}
+        if isinstance(frames, SourceSpec):
+            if self.tracking == "process" and self.clock is time.monotonic:
+                self._remote = ProcessSource(frames, sizes, self.realtime, self.queue)
+                return TrackedFeed(iter(self._remote), None, self.realtime, self.clock,
+                                   self.sleep, self.queue)
+            frames = frames.frames()
+        if self.tracking == "process":
+            self._tracking = TrackingProcess(sizes)
+        return TrackedFeed(frames, self._track, self.realtime, self.clock, self.sleep,
+                           self.queue, threaded=self.tracking != "inline")
 
     def _keys_off(self) -> bool:
         """Whether the smoother solves at every frame (no keyframes to defer)."""
@@ -328,8 +314,11 @@ class LiveEstimator:
                                         [kept.tracks for kept in self._kept]))
 
     def _track(self, images: dict[int, NDArray]) -> dict[int, tuple[NDArray, NDArray]]:
-        """Each camera's tracks in its new image, the cameras in parallel threads (OpenCV's
-        optical flow and corner detection release the interpreter)."""
+        """Each camera's tracks in its new image: in the tracking process if there is one, else
+        the cameras in parallel threads (OpenCV's optical flow and corner detection release
+        the interpreter)."""
+        if self._tracking is not None:
+            return self._tracking.track(images)
         cams = sorted(images)
         found = self._pool.map(lambda cam: self.trackers[cam].update(images[cam]), cams)
         return dict(zip(cams, found, strict=True))

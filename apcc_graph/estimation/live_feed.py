@@ -16,10 +16,10 @@ takes next is never more than ``capacity`` frames old. Otherwise the feed waits 
 every frame is smoothed.
 
 **Inline.** With ``threaded=False`` nothing runs in the background: :meth:`TrackedFeed.get`
-tracks the next frame when the queue is empty, and then (real time) every further frame that has
-already arrived by the clock (at most ``capacity``). The smoother's policy then sees the same backlog
-as with the thread, deterministically under a controlled clock (the tests use it), but
-tracking no longer overlaps smoothing.
+tracks the next frame when the queue is empty, and then (real time) every further frame that
+has already arrived by the clock (at most ``capacity``). The smoother's policy then sees the
+same backlog as with the thread, deterministically under a controlled clock (the tests use
+it), but tracking no longer overlaps smoothing.
 """
 
 from __future__ import annotations
@@ -45,6 +45,11 @@ Frame = tuple[int, float, dict[int, NDArray]]
 Tracks = dict[int, tuple[NDArray, NDArray]]
 """Camera -> its track ids and pixels in the frame."""
 
+Relayed = tuple["TrackedFrame", list[tuple[float, int]], int, int]
+"""A frame tracked in another process (:mod:`~apcc_graph.estimation.live_process`), the
+``(timestamp, index)`` of the frames that arrived there since the last, and its counts of
+frames not tracked and pushed out of its queue so far."""
+
 
 @dataclass(frozen=True)
 class TrackedFrame:
@@ -69,7 +74,9 @@ class TrackedFeed:
 
     Args:
         source: the frames, in time order.
-        track: a frame's images -> its tracks (the live loop's trackers).
+        track: a frame's images -> its tracks (the live loop's trackers); ``None``: the source
+            gives :data:`Relayed` frames, paced and tracked in another process (they join the
+            queue as they come).
         realtime: play the source at its own pace (module docstring).
         clock, sleep: wall time (seconds) and waiting.
         capacity: tracked frames waiting, at most.
@@ -85,20 +92,24 @@ class TrackedFeed:
             smoothing's: the frames that arrived meanwhile are all tracked).
     """
 
-    def __init__(self, source: Iterator[Frame], track: Callable[[dict[int, NDArray]], Tracks],
+    def __init__(self, source: Iterator[Frame] | Iterator[Relayed],
+                 track: Callable[[dict[int, NDArray]], Tracks] | None,
                  realtime: bool, clock: Callable[[], float], sleep: Callable[[float], None],
                  capacity: int = QUEUE_FRAMES, threaded: bool = True) -> None:
         if capacity < 1:
             raise ValueError(f"TrackedFeed capacity = {capacity}: expected at least 1 frame")
         self._source, self._track = iter(source), track
+        self._relay = track is None  # the source gives frames paced and tracked elsewhere
         self.realtime, self.clock, self.sleep = realtime, clock, sleep
         self.capacity, self.threaded = capacity, threaded
-        self.tracked = self.untracked = self.overflow = self.deepest = 0
+        self.tracked = self.untracked = self.deepest = 0
+        self._overflow_here = self._overflow_there = 0
         self.allowance = 0.0
         self._queue: deque[TrackedFrame] = deque()
         self._arrivals: deque[tuple[float, int]] = deque()  # not yet taken by ``arrivals``
         self._lock = threading.Condition()
-        self._next: Frame | None = next(self._source, None)  # read ahead: has it arrived?
+        self._next: Frame | None = (  # read ahead: has it arrived?
+            None if self._relay else next(self._source, None))  # type: ignore[arg-type]
         self._start: tuple[float, float] | None = None  # wall time and source time of a frame
         self._ended = self._closed = self._paused = False
         self._error: BaseException | None = None
@@ -148,10 +159,16 @@ class TrackedFeed:
             return len(self._queue)
 
     @property
+    def overflow(self) -> int:
+        """Tracked frames pushed out of a full queue (real time), here and where they were
+        tracked."""
+        return self._overflow_here + self._overflow_there
+
+    @property
     def exhausted(self) -> bool:
         """Whether the source has no frame left to track (the queue may still hold some)."""
         with self._lock:
-            return self._ended or self._next is None
+            return self._ended or (self._next is None and not self._relay)
 
     def pause(self) -> None:
         """Stop reading the source until :meth:`resume` (the loop's own pause, e.g. the start
@@ -203,6 +220,8 @@ class TrackedFeed:
         with self._lock:
             while self._paused and not self._closed:
                 self._lock.wait()
+        if self._relay and not self._closed:
+            return self._relayed()
         if self._closed or self._next is None:
             with self._lock:
                 self._ended = True
@@ -226,12 +245,28 @@ class TrackedFeed:
         self._enqueue(frame)
         return True
 
+    def _relayed(self) -> bool:
+        """The next frame tracked elsewhere, into the queue, with what happened there."""
+        item = next(self._source, None)  # type: ignore[call-overload]
+        if item is None:
+            with self._lock:
+                self._ended = True
+                self._lock.notify_all()
+            return False
+        frame, arrivals, untracked, overflow = item
+        with self._lock:
+            self._arrivals.extend(arrivals)
+            self.untracked, self._overflow_there = untracked, overflow
+        self.tracked += 1
+        self._enqueue(frame)
+        return True
+
     def _enqueue(self, frame: TrackedFrame) -> None:
         with self._lock:
             if self.realtime:
                 if len(self._queue) >= self.capacity:
                     self._queue.popleft()
-                    self.overflow += 1
+                    self._overflow_here += 1
             else:
                 while len(self._queue) >= self.capacity and not self._closed:
                     self._lock.wait()

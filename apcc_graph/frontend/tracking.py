@@ -10,6 +10,16 @@ Per camera, frame by frame (:class:`KLTTracker`):
    ``cv2.goodFeaturesToTrack`` away from the surviving ones (``min_distance`` pixels) and start new
    tracks with fresh ids.
 
+**Speed** (tracking must keep up with the cameras beside the smoother, live). The pyramid is
+*sized to the motion* (``motion_levels``): Lucas-Kanade with a window of radius ``r`` recovers about
+``r (2^(L+1) - 1)`` pixels of motion with ``L`` levels above the image, so a frame uses the
+fewest levels that cover :data:`MOTION_MARGIN` times the last frame's 90th-percentile track
+motion, at most ``levels``; when fewer than half the tracks survive with fewer levels, the
+frame is followed again with all of them (a sudden jump loses no tracks to the smaller
+pyramid). The mask that keeps new corners away from live tracks is stamped with numpy in one
+pass (a drawing call per track made hundreds of calls into OpenCV, each a wait for the
+interpreter when another thread holds it).
+
 Pixels follow OpenCV: ``(u, v)`` with the origin at the top-left pixel's centre. Track ids are
 non-negative and never reused within one tracker, so the output is the ``Tracks`` of the
 sequence format (``tracks/cam_<i>.csv``).
@@ -30,6 +40,9 @@ from apcc_graph.io.console import progress_bar
 from apcc_graph.model.arrays import FloatArray, IntArray
 from apcc_graph.model.sequence import Tracks
 
+MOTION_MARGIN = 5.0
+"""The pyramid covers this many times the last frame's 90th-percentile track motion (pixels)."""
+
 
 @dataclass(frozen=True)
 class TrackerOptions:
@@ -44,6 +57,8 @@ class TrackerOptions:
         levels: pyramid levels above the full image.
         fb_threshold: largest forward-backward round-trip error of a surviving track.
         border: tracks closer than this to the image edge end.
+        motion_levels: size the pyramid to the last frame's motion, at most ``levels``
+            (module docstring); ``False``: always ``levels``.
     """
 
     max_tracks: int = 300
@@ -54,6 +69,7 @@ class TrackerOptions:
     levels: int = 3
     fb_threshold: float = 0.5
     border: float = 2.0
+    motion_levels: bool = True
 
     def __post_init__(self) -> None:
         if not 0 < self.min_tracks <= self.max_tracks:
@@ -67,7 +83,7 @@ class TrackerOptions:
                              "0 < quality < 1, levels >= 0, border >= 0")
 
 
-def _gray(image: NDArray, shape: tuple[int, int] | None, where: str) -> NDArray[np.uint8]:
+def gray_image(image: NDArray, shape: tuple[int, int] | None, where: str) -> NDArray[np.uint8]:
     """An 8-bit grey image, checked against the expected ``(height, width)``."""
     image = np.asarray(image)
     if image.ndim == 3 and image.shape[2] in (3, 4):
@@ -100,6 +116,8 @@ class KLTTracker:
         self.options = TrackerOptions() if options is None else options
         self._shape = None if size is None else (int(size[1]), int(size[0]))
         self._previous: NDArray[np.uint8] | None = None
+        self._motion: float | None = None  # the last frame's 90th-percentile motion (pixels)
+        self.refollowed = 0  # frames followed again with every level (module docstring)
         self._uv = np.zeros((0, 2), dtype=np.float32)
         self._ids = np.zeros(0, dtype=np.int64)
         self._next_id = 0
@@ -115,11 +133,13 @@ class KLTTracker:
             ValueError: an image of the wrong size or layout (the message names the frame).
         """
         where = f"frame {self._frame}"
-        gray = _gray(image, self._shape, where)
+        gray = gray_image(image, self._shape, where)
         if self._shape is None:
             self._shape = gray.shape
         if self._previous is not None and len(self._uv):
             self._follow(gray)
+        else:
+            self._motion = None
         if len(self._uv) < self.options.min_tracks:
             self._detect(gray)
         self._previous = gray
@@ -127,24 +147,49 @@ class KLTTracker:
         order = np.argsort(self._ids)
         return self._ids[order].copy(), self._uv[order].astype(float)
 
-    def _follow(self, gray: NDArray[np.uint8]) -> None:
+    def levels_for(self, motion: float | None) -> int:
+        """Pyramid levels above the image for a frame after one whose tracks moved ``motion``
+        pixels (90th percentile; ``None``: not known, all ``levels``)."""
         o = self.options
+        if motion is None or not o.motion_levels:
+            return o.levels
+        radius = o.window // 2
+        for levels in range(o.levels):
+            if radius * (2 ** (levels + 1) - 1) >= MOTION_MARGIN * motion:
+                return levels
+        return o.levels
+
+    def _follow(self, gray: NDArray[np.uint8]) -> None:
+        """Follow the live tracks into ``gray`` (module docstring)."""
+        levels = self.levels_for(self._motion)
+        fwd, keep = self._flow(gray, levels)
+        if levels < self.options.levels and keep.sum() < 0.5 * len(keep):
+            self.refollowed += 1  # a jump the smaller pyramid missed: every level
+            fwd, keep = self._flow(gray, self.options.levels)
+        moved = np.linalg.norm(fwd[keep] - self._uv[keep], axis=1)
+        self._motion = float(np.percentile(moved, 90)) if len(moved) else None
+        self._uv, self._ids = fwd[keep].astype(np.float32), self._ids[keep]
+
+    def _flow(self, gray: NDArray[np.uint8], levels: int) -> tuple[NDArray, NDArray[np.bool_]]:
+        """The tracks' pixels in ``gray`` with ``levels`` pyramid levels, and which survive the
+        check."""
+        o = self.options
+        assert self._previous is not None
+        lk = dict(self._lk, maxLevel=levels)
         prev = self._uv.reshape(-1, 1, 2)
-        fwd, st1, _ = cv2.calcOpticalFlowPyrLK(self._previous, gray, prev, None, **self._lk)
-        back, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self._previous, fwd, None, **self._lk)
+        fwd, st1, _ = cv2.calcOpticalFlowPyrLK(self._previous, gray, prev, None, **lk)
+        back, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self._previous, fwd, None, **lk)
         fwd, back = fwd.reshape(-1, 2), back.reshape(-1, 2)
         round_trip = np.linalg.norm(back - self._uv, axis=1)
         h, w = gray.shape
         inside = ((fwd[:, 0] >= o.border) & (fwd[:, 0] <= w - 1 - o.border)
                   & (fwd[:, 1] >= o.border) & (fwd[:, 1] <= h - 1 - o.border))
         keep = (st1.ravel() == 1) & (st2.ravel() == 1) & (round_trip < o.fb_threshold) & inside
-        self._uv, self._ids = fwd[keep].astype(np.float32), self._ids[keep]
+        return fwd, keep
 
     def _detect(self, gray: NDArray[np.uint8]) -> None:
         o = self.options
-        mask = np.full(gray.shape, 255, dtype=np.uint8)
-        for u, v in self._uv:
-            cv2.circle(mask, (int(round(u)), int(round(v))), int(o.min_distance), 0, -1)
+        mask = away_from(gray.shape, self._uv, int(o.min_distance))
         wanted = o.max_tracks - len(self._uv)
         if wanted <= 0:
             return
@@ -160,6 +205,24 @@ class KLTTracker:
         self._next_id += len(corners)
         self._uv = np.concatenate([self._uv, corners.astype(np.float32)])
         self._ids = np.concatenate([self._ids, ids])
+
+
+def away_from(shape: tuple[int, ...], uv: NDArray, radius: int) -> NDArray[np.uint8]:
+    """A mask of an image of ``shape`` ``(H, W)``: 255, but 0 within ``radius`` pixels of each
+    point ``uv`` ``(N, 2)`` (rounded to the nearest pixel), as ``cv2.circle`` fills them."""
+    h, w = shape[:2]
+    mask = np.full((h, w), 255, dtype=np.uint8)
+    if len(uv) == 0:
+        return mask
+    dv, du = np.mgrid[-radius:radius + 1, -radius:radius + 1]
+    disk = du**2 + dv**2 <= radius**2
+    du, dv = du[disk], dv[disk]
+    centres = np.rint(np.asarray(uv, dtype=float)).astype(np.int64)
+    u = (centres[:, :1] + du).ravel()
+    v = (centres[:, 1:] + dv).ravel()
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    mask[v[inside], u[inside]] = 0
+    return mask
 
 
 def track_images(images: Iterable[NDArray], size: tuple[int, int] | None = None,
