@@ -42,7 +42,7 @@ class CountingSolver:
 
 
 def _run(rule: KeyframeRule | None, frames: int = FRAMES, seed: int = 2,
-         drop: tuple[int, ...] = ()):
+         drop: tuple[int, ...] = (), busy: bool = False):
     """The smoother over a room-scene simulation (the frames ``drop`` without observations):
     (sequence, estimates returned by each update, final estimates from pop_final and finish,
     the smoother, its iSAM2 updates)."""
@@ -58,7 +58,7 @@ def _run(rule: KeyframeRule | None, frames: int = FRAMES, seed: int = 2,
         obs = seq.frame(f)
         if f in drop:
             obs = FrameObservations(obs.timestamp, {}, world_T_base=obs.world_T_base)
-        now.append(smoother.update(obs))
+        now.append(smoother.update(obs, busy=busy))
         final += smoother.pop_final()
     final += smoother.finish()
     return seq, now, final, smoother, counter.updates
@@ -182,3 +182,22 @@ def test_a_gtsam_failure_at_a_keyframe_restarts_and_loses_no_frame() -> None:
     assert [e.frame for e in final] == list(range(50))
     err = np.degrees(np.abs(np.array([e.thetas for e in final]) - seq.thetas))
     assert err[:25].max() < 0.3 and err.max() < 0.6, (err[:25].max(), err.max())
+
+
+def test_a_busy_caller_defers_keyframes_up_to_the_rules_limit(keyed) -> None:
+    """Every frame given with ``busy`` (the live loop with frames waiting): after the warm-up
+    the rule's keyframes wait until the last keyframe is ``max_deferral`` old, so fewer solves
+    (counted on the window) and never two rule-made keyframes closer than that; every frame
+    still gets its estimate at once and its final one, in order, and the finals stay within
+    0.5 deg RMS of the truth."""
+    rule = KeyframeRule(rotation=0.1, max_interval=0.1, parallax=0.03, max_deferral=0.2)
+    seq, now, final, smoother, updates = _run(rule, busy=True)
+    keys = smoother._keys
+    assert keys.deferred > 0
+    _, _, _, calm, calm_updates = _run(rule)
+    assert updates < calm_updates and calm._keys.deferred == 0
+    solved = [e.timestamp for e in now if e.status[0] != PENDING]
+    after = [t for t in solved if t >= 0.5]  # the warm-up solves every frame for one lag
+    assert np.all(np.diff(after) >= 0.2 - 1e-6 - 1 / 30.0), np.diff(after)
+    assert [e.frame for e in final] == list(range(FRAMES))
+    assert np.all(_rms(final, seq.thetas) < 0.5), _rms(final, seq.thetas)
