@@ -188,7 +188,7 @@ def test_the_mask_of_new_corners_is_the_one_circles_draw() -> None:
 def test_pyramid_levels_follow_the_motion_and_a_jump_loses_no_tracks() -> None:
     """Slow motion uses fewer pyramid levels than the most; a sudden 40-pixel jump after it is
     followed again with all of them, and the tracks survive as with a fixed pyramid."""
-    tracker = KLTTracker(SIZE)
+    tracker = KLTTracker(SIZE, TrackerOptions(motion_levels=True))
     assert tracker.levels_for(None) == tracker.options.levels
     assert tracker.levels_for(1.0) == 0 and tracker.levels_for(100.0) == tracker.options.levels
     assert tracker.levels_for(3.0) < tracker.levels_for(10.0)

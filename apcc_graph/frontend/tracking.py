@@ -10,8 +10,9 @@ Per camera, frame by frame (:class:`KLTTracker`):
    ``cv2.goodFeaturesToTrack`` away from the surviving ones (``min_distance`` pixels) and start new
    tracks with fresh ids.
 
-**Speed** (tracking must keep up with the cameras beside the smoother, live). The pyramid is
-*sized to the motion* (``motion_levels``): Lucas-Kanade with a window of radius ``r`` recovers about
+**Speed** (tracking must keep up with the cameras beside the smoother, live). The pyramid can
+be *sized to the motion* (``motion_levels``, off by default: on the live benchmark's rendered
+videos it tracked 0.85x the time at 1.0-1.3x the offline smoother's RMS per segment, two seeds): Lucas-Kanade with a window of radius ``r`` recovers about
 ``r (2^(L+1) - 1)`` pixels of motion with ``L`` levels above the image, so a frame uses the
 fewest levels that cover :data:`MOTION_MARGIN` times the last frame's 90th-percentile track
 motion, at most ``levels``; when fewer than half the tracks survive with fewer levels, the
@@ -58,7 +59,7 @@ class TrackerOptions:
         fb_threshold: largest forward-backward round-trip error of a surviving track.
         border: tracks closer than this to the image edge end.
         motion_levels: size the pyramid to the last frame's motion, at most ``levels``
-            (module docstring); ``False``: always ``levels``.
+            (module docstring); ``False`` (the default): always ``levels``.
     """
 
     max_tracks: int = 300
@@ -69,7 +70,7 @@ class TrackerOptions:
     levels: int = 3
     fb_threshold: float = 0.5
     border: float = 2.0
-    motion_levels: bool = True
+    motion_levels: bool = False
 
     def __post_init__(self) -> None:
         if not 0 < self.min_tracks <= self.max_tracks:
