@@ -12,7 +12,8 @@ Per camera, frame by frame (:class:`KLTTracker`):
 
 **Speed** (tracking must keep up with the cameras beside the smoother, live). The pyramid can
 be *sized to the motion* (``motion_levels``, off by default: on the live benchmark's rendered
-videos it tracked 0.85x the time at 1.0-1.3x the offline smoother's RMS per segment, two seeds): Lucas-Kanade with a window of radius ``r`` recovers about
+videos it tracked in 0.85x the time at 1.0-1.35x the offline smoother's RMS per segment, two
+seeds): Lucas-Kanade with a window of radius ``r`` recovers about
 ``r (2^(L+1) - 1)`` pixels of motion with ``L`` levels above the image, so a frame uses the
 fewest levels that cover :data:`MOTION_MARGIN` times the last frame's 90th-percentile track
 motion, at most ``levels``; when fewer than half the tracks survive with fewer levels, the
