@@ -245,3 +245,14 @@ def test_both_measurement_models_run_live_with_keyframes(
     errors = np.array([fr.thetas for fr in final]) - truth
     limit = 0.1 if model_sigma is None else 2.0
     assert np.all(np.degrees(np.sqrt(np.mean(errors**2, axis=0))) < limit)
+
+
+def test_the_command_offers_the_places_tracking_runs_that_the_loop_knows() -> None:
+    from apcc_graph.cli import live as command
+    from apcc_graph.estimation import live
+    from apcc_graph.io.robot_file import load_robot
+
+    assert command.TRACKING == live.TRACKING
+    robot = load_robot(Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml")
+    with pytest.raises(ValueError, match="tracking = 'gpu': expected one of process, thread"):
+        live.LiveEstimator(robot, tracking="gpu")

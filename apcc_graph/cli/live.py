@@ -23,8 +23,9 @@ from apcc_graph.cli.common import (
 )
 
 if TYPE_CHECKING:
-    from apcc_graph.estimation.live import LiveEstimate
+    from apcc_graph.estimation.live import LiveEstimate, LiveEstimator
     from apcc_graph.estimation.live_process import SourceSpec
+    from apcc_graph.io.estimates import AppendedEstimate
 
 TRACKING = ("process", "thread", "inline")  # as apcc_graph.estimation.live.TRACKING
 
@@ -122,7 +123,7 @@ def run(args: argparse.Namespace) -> str:
     files = AppendedEstimate(out, robot.n_segments, lambda th: robot.forward(th))
     now = NowEstimates(out, robot.n_segments)
     status = StatusLine()
-    latencies, processed, began = [], 0, time.monotonic()
+    latencies, began = [], time.monotonic()
     with deferred_interrupts() as stop:
         try:
             shown = 0.0
@@ -131,7 +132,6 @@ def run(args: argparse.Namespace) -> str:
                            est.pending, est.latency)
                 for fr in est.final:
                     files.append(fr.frame, fr.timestamp, fr.thetas, fr.sigmas, fr.clamped)
-                processed += 1
                 latencies.append(est.latency)
                 if time.monotonic() - shown > 0.5:
                     shown = time.monotonic()
@@ -143,20 +143,26 @@ def run(args: argparse.Namespace) -> str:
             files.close()
             now.close()
     estimator.interrupted = estimator.interrupted or stop.is_set()  # also while finishing
-    wall = time.monotonic() - began
-    median = 1e3 * float(np.median(latencies)) if latencies else float("nan")
-    clamped = (f"; {files.clamped_rows} rows with an angle clamped to its limit (clamped_i)"
-               if files.clamped_rows else "")
-    summary = (f"{'interrupted: ' if estimator.interrupted else ''}{processed} frames estimated "
-               f"in {wall:.1f} s ({processed / max(wall, 1e-9):.1f} per second), "
-               f"{estimator.dropped} dropped, median latency {median:.0f} ms; wrote {files.rows} "
-               f"rows to {Path(out) / 'theta.csv'} and tips_seg_<i>.tum, {now.rows} to "
-               f"theta_now.csv{clamped}"
-               + (f"; {estimator.start_search}" if estimator.start_search else ""))
+    summary = _summary(estimator, time.monotonic() - began, latencies, files, now.rows, out)
     if estimator.interrupted:
         print(summary, flush=True)
         raise KeyboardInterrupt
     return summary
+
+
+def _summary(estimator: LiveEstimator, wall: float, latencies: list[float],
+             files: AppendedEstimate, now_rows: int, out: Path) -> str:
+    """The line ``live`` ends with (``wall``: seconds of the run)."""
+    processed = len(latencies)
+    median = 1e3 * float(np.median(latencies)) if latencies else float("nan")
+    clamped = (f"; {files.clamped_rows} rows with an angle clamped to its limit (clamped_i)"
+               if files.clamped_rows else "")
+    return (f"{'interrupted: ' if estimator.interrupted else ''}{processed} frames estimated "
+            f"in {wall:.1f} s ({processed / max(wall, 1e-9):.1f} per second), "
+            f"{estimator.dropped} dropped, median latency {median:.0f} ms; wrote {files.rows} "
+            f"rows to {Path(out) / 'theta.csv'} and tips_seg_<i>.tum, {now_rows} to "
+            f"theta_now.csv{clamped}"
+            + (f"; {estimator.start_search}" if estimator.start_search else ""))
 
 
 def _empty(folder: Path) -> None:

@@ -217,12 +217,12 @@ class LiveEstimator:
                 yield self._process(frame, busy=self.realtime and backlog > 0)
                 if self.tracking == "inline":  # tracking waited for this smoothing
                     feed.allowance = self.clock() - began
-        finally:
-            feed.close()
+        finally:  # the processes first: the feed's thread may wait on one
             for stage in (self._tracking, self._remote):
                 if stage is not None:
                     stage.close()
             self._tracking = self._remote = None
+            feed.close()
         if self.smoother is None and self._kept:  # a source shorter than the search, or stopped
             self._search_start(ended=True)
             yield from self._kept_frames()
