@@ -32,6 +32,7 @@ from typing import IO, Any
 
 from apcc_graph.estimation.live_feed import QUEUE_FRAMES, Relayed, TrackedFeed
 from apcc_graph.estimation.live_sources import Frame
+from apcc_graph.frontend.tracking_process import end_process
 
 TRACKING_SLACK = 0.4
 """Seconds beyond :data:`~apcc_graph.estimation.live_feed.MAX_BEHIND` that tracking in its
@@ -132,18 +133,7 @@ class ProcessSource:
 
     def close(self) -> None:
         """End the process (closing its input stops it at the next frame; killed after 2 s)."""
-        try:
-            assert self._process.stdin is not None
-            self._process.stdin.close()
-        except (BrokenPipeError, OSError):
-            pass
-        try:
-            self._process.wait(timeout=2.0)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
-        if self._process.stdout is not None:
-            self._process.stdout.close()
+        end_process(self._process, 2.0)
 
 
 def _serve(inbox: IO[bytes], outbox: IO[bytes]) -> None:

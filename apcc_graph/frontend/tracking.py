@@ -13,14 +13,14 @@ Per camera, frame by frame (:class:`KLTTracker`):
 **Speed** (tracking must keep up with the cameras beside the smoother, live). The pyramid can
 be *sized to the motion* (``motion_levels``, off by default: on the live benchmark's rendered
 videos it tracked in 0.85x the time at 1.0-1.35x the offline smoother's RMS per segment, two
-seeds): Lucas-Kanade with a window of radius ``r`` recovers about
-``r (2^(L+1) - 1)`` pixels of motion with ``L`` levels above the image, so a frame uses the
-fewest levels that cover :data:`MOTION_MARGIN` times the last frame's 90th-percentile track
-motion, at most ``levels``; when fewer than half the tracks survive with fewer levels, the
-frame is followed again with all of them (a sudden jump loses no tracks to the smaller
-pyramid). The mask that keeps new corners away from live tracks is stamped with numpy in one
-pass (a drawing call per track made hundreds of calls into OpenCV, each a wait for the
-interpreter when another thread holds it).
+seeds: ``python tests/tracker_options.py 600 1,2 "" motion_levels=1``). Lucas-Kanade with a
+window of radius ``r`` recovers about ``r (2^(L+1) - 1)`` pixels of motion with ``L`` levels
+above the image, so a frame uses the fewest levels that cover :data:`MOTION_MARGIN` times the
+last frame's 90th-percentile track motion, at most ``levels``; when fewer than half the tracks
+survive with fewer levels, the frame is followed again with all of them (a sudden jump loses
+no tracks to the smaller pyramid). The mask that keeps new corners away from live tracks is
+stamped with numpy in one pass (a drawing call per track made hundreds of calls into OpenCV,
+each a wait for the interpreter when another thread holds it).
 
 Pixels follow OpenCV: ``(u, v)`` with the origin at the top-left pixel's centre. Track ids are
 non-negative and never reused within one tracker, so the output is the ``Tracks`` of the

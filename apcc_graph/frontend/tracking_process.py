@@ -53,6 +53,23 @@ def _serve(inbox: IO[bytes], outbox: IO[bytes]) -> None:
         outbox.flush()
 
 
+def end_process(process: subprocess.Popen, timeout: float) -> None:
+    """End a child that stops when its input closes: close its input, wait ``timeout``
+    seconds for it, then kill it, and close its output."""
+    try:
+        if process.stdin is not None:
+            process.stdin.close()
+    except (BrokenPipeError, OSError):
+        pass
+    try:
+        process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+    if process.stdout is not None:
+        process.stdout.close()
+
+
 class TrackingProcess:
     """A :class:`~apcc_graph.frontend.tracking.KLTTracker` per camera, in a process of its own
     (module docstring); :meth:`track` with each frame's images, in order; :meth:`close` ends
@@ -103,17 +120,9 @@ class TrackingProcess:
         """End the process (waits a second for it, then kills it)."""
         try:
             self._send(None)
-            assert self._process.stdin is not None
-            self._process.stdin.close()
         except (BrokenPipeError, OSError, ValueError):
             pass
-        try:
-            self._process.wait(timeout=1.0)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
-        if self._process.stdout is not None:
-            self._process.stdout.close()
+        end_process(self._process, 1.0)
 
     def __enter__(self) -> TrackingProcess:
         return self
