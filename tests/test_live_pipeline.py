@@ -256,3 +256,27 @@ def test_the_command_offers_the_places_tracking_runs_that_the_loop_knows() -> No
     robot = load_robot(Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml")
     with pytest.raises(ValueError, match="tracking = 'gpu': expected one of process, thread"):
         live.LiveEstimator(robot, tracking="gpu")
+
+
+def test_live_names_a_video_it_cannot_open_before_anything_runs(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``apcc-graph live --video`` with a file OpenCV cannot open: exit 1, one line naming that
+    file, and no output folder made (the tracking process is never started)."""
+    from apcc_graph.cli import main
+
+    robot = Path(__file__).resolve().parents[1] / "data/robots/planar_three.toml"
+    frames = _images(3, cams=1)
+    good = tmp_path / "good.avi"
+    writer = cv2.VideoWriter(str(good), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, SIZE, False)
+    for images in frames:
+        writer.write(images[0])
+    writer.release()
+    bad = tmp_path / "not_a_video.mp4"
+    bad.write_text("text, not a video")
+    out = tmp_path / "out"
+    code = main(["live", "--video", f"{good},{bad},{good}", "--robot", str(robot),
+                 "--out", str(out), "--theta0-deg", "0,0,0"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1
+    assert "not_a_video.mp4: OpenCV cannot open it as a video" in err[0]
+    assert not out.exists()

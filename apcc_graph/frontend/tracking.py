@@ -168,8 +168,9 @@ class KLTTracker:
         if levels < self.options.levels and keep.sum() < 0.5 * len(keep):
             self.refollowed += 1  # a jump the smaller pyramid missed: every level
             fwd, keep = self._flow(gray, self.options.levels)
-        moved = np.linalg.norm(fwd[keep] - self._uv[keep], axis=1)
-        self._motion = float(np.percentile(moved, 90)) if len(moved) else None
+        if self.options.motion_levels:  # only then is the motion used
+            moved = np.linalg.norm(fwd[keep] - self._uv[keep], axis=1)
+            self._motion = float(np.percentile(moved, 90)) if len(moved) else None
         self._uv, self._ids = fwd[keep].astype(np.float32), self._ids[keep]
 
     def _flow(self, gray: NDArray[np.uint8], levels: int) -> tuple[NDArray, NDArray[np.bool_]]:
